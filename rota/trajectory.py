@@ -1,0 +1,249 @@
+"""Input trajectories: the path sigma(tau) that ROTA re-times (paper Eq. 1).
+
+Every trajectory maps trajectory time ``tau`` (an array) to position, velocity
+and acceleration with respect to ``tau`` (``sigma``, ``sigma'``, ``sigma''`` of
+paper Eqs. 3-5). Three forms cover what planners publish:
+
+* :class:`BSplineTrajectory`: uniform (or explicit-knot) B-splines, as EGO-Planner
+  and Fast-Planner publish them (``traj_utils/Bspline``).
+* :class:`PolynomialTrajectory`: piecewise polynomials (minimum-snap style).
+* :class:`SampledTrajectory`: time-stamped samples, interpolated C2.
+
+All are thin wrappers over scipy's spline classes; evaluation is vectorised and
+clamps ``tau`` to the trajectory's domain (no extrapolation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import interpolate
+
+from rota.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+
+def _finite_array(value: ArrayLike, name: str, ndim: int, width: int | None = None) -> FloatArray:
+    """Convert to a float array and check shape and finiteness, naming the field."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(name, f"must be numeric ({exc})") from None
+    if arr.ndim != ndim:
+        raise InputError(name, f"must have {ndim} dimension(s), got shape {arr.shape}")
+    if width is not None and arr.shape[-1] != width:
+        raise InputError(name, f"must have {width} columns (x, y, z), got shape {arr.shape}")
+    if arr.size == 0:
+        raise InputError(name, "must not be empty")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise InputError(f"{name}{list(idx)}", "must be finite (got NaN or inf)")
+    return arr
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Base class: a C2 path over trajectory time ``[t0, t1]``.
+
+    Subclasses provide ``_spline`` (a scipy piecewise-polynomial object evaluating
+    to shape ``(n, 3)``) via ``__post_init__``.
+    """
+
+    _spline: object = field(init=False, repr=False, compare=False)
+    _d1: object = field(init=False, repr=False, compare=False)
+    _d2: object = field(init=False, repr=False, compare=False)
+
+    def _set_spline(self, spline: interpolate.PPoly | interpolate.BSpline | interpolate.BPoly) -> None:
+        object.__setattr__(self, "_spline", spline)
+        object.__setattr__(self, "_d1", spline.derivative(1))
+        object.__setattr__(self, "_d2", spline.derivative(2))
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        """Trajectory-time interval ``(tau_0, tau_f)`` on which the path is defined."""
+        raise NotImplementedError
+
+    @property
+    def duration(self) -> float:
+        """``tau_f - tau_0``: the planner's own duration of the path."""
+        t0, t1 = self.domain
+        return t1 - t0
+
+    def evaluate(self, tau: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, first and second derivative w.r.t. tau, each of shape ``(n, 3)``."""
+        t0, t1 = self.domain
+        x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), t0, t1)
+        return (
+            np.asarray(self._spline(x), dtype=float),
+            np.asarray(self._d1(x), dtype=float),
+            np.asarray(self._d2(x), dtype=float),
+        )
+
+    def position(self, tau: ArrayLike) -> FloatArray:
+        """Position only, shape ``(n, 3)``."""
+        t0, t1 = self.domain
+        x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), t0, t1)
+        return np.asarray(self._spline(x), dtype=float)
+
+
+@dataclass(frozen=True)
+class BSplineTrajectory(Trajectory):
+    """B-spline of ``degree`` over ``control_points`` (shape ``(n, 3)``).
+
+    With ``knot_span`` the knot vector is uniform, ``u_m = (m - degree) * knot_span``
+    (EGO-Planner convention), so the domain is ``[0, (n - degree) * knot_span]``.
+    Alternatively give the full, non-decreasing ``knots`` (length ``n + degree + 1``).
+    """
+
+    control_points: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    degree: int = 3
+    knot_span: float | None = None
+    knots: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        cps = _finite_array(self.control_points, "control_points", 2, 3)
+        object.__setattr__(self, "control_points", cps)
+        if not isinstance(self.degree, int | np.integer) or not 3 <= int(self.degree) <= 7:
+            raise InputError("degree", f"must be an integer from 3 to 7, got {self.degree!r}")
+        k = int(self.degree)
+        n = len(cps)
+        if n < k + 1:
+            raise InputError("control_points", f"need at least degree + 1 = {k + 1}, got {n}")
+        if (self.knots is None) == (self.knot_span is None):
+            raise InputError("knot_span", "give exactly one of knot_span (uniform) or knots")
+        if self.knots is None:
+            span = float(self.knot_span)  # type: ignore[arg-type]
+            if not np.isfinite(span) or span <= 0:
+                raise InputError("knot_span", f"must be a positive number, got {self.knot_span!r}")
+            knots = (np.arange(n + k + 1, dtype=float) - k) * span
+        else:
+            knots = _finite_array(self.knots, "knots", 1)
+            if len(knots) != n + k + 1:
+                raise InputError("knots", f"must have len(control_points) + degree + 1 = "
+                                 f"{n + k + 1} entries, got {len(knots)}")
+            if np.any(np.diff(knots) < 0):
+                raise InputError("knots", "must be non-decreasing")
+            if knots[n] <= knots[k]:
+                raise InputError("knots", "the valid domain [knots[degree], knots[n]] is empty")
+        object.__setattr__(self, "knots", knots)
+        self._set_spline(interpolate.BSpline(knots, cps, k, extrapolate=False))
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        n, k = len(self.control_points), int(self.degree)
+        assert self.knots is not None
+        return float(self.knots[k]), float(self.knots[n])
+
+
+@dataclass(frozen=True)
+class PolynomialTrajectory(Trajectory):
+    """Piecewise polynomial: ``durations[j]`` and ``coefficients[j]`` per segment.
+
+    ``coefficients`` has shape ``(segments, 3, degree + 1)``: per segment and axis,
+    coefficients in ascending powers of the segment's local time ``s in [0, T_j]``
+    (``p(s) = c0 + c1 s + c2 s^2 + ...``). Segments must join with continuous
+    position and velocity (C1); the domain is ``[0, sum(durations)]``.
+    """
+
+    durations: FloatArray = field(default_factory=lambda: np.zeros(0))
+    coefficients: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 1)))
+
+    def __post_init__(self) -> None:
+        durs = _finite_array(self.durations, "durations", 1)
+        if np.any(durs <= 0):
+            raise InputError(f"durations[{int(np.argmax(durs <= 0))}]", "must be positive")
+        coefs = _finite_array(self.coefficients, "coefficients", 3)
+        if coefs.shape[0] != len(durs) or coefs.shape[1] != 3:
+            raise InputError("coefficients", f"must have shape (segments={len(durs)}, 3, degree+1), "
+                             f"got {coefs.shape}")
+        if coefs.shape[2] < 3:
+            raise InputError("coefficients", "polynomials need degree >= 2 (acceleration)")
+        object.__setattr__(self, "durations", durs)
+        object.__setattr__(self, "coefficients", coefs)
+        breaks = np.concatenate([[0.0], np.cumsum(durs)])
+        # scipy PPoly: c[power_desc, segment, axis]
+        c = np.transpose(coefs[:, :, ::-1], (2, 0, 1))
+        spline = interpolate.PPoly(c, breaks, extrapolate=False)
+        self._set_spline(spline)
+        if len(durs) > 1:
+            joints = breaks[1:-1]
+            for order, what, fn in ((0, "position", self._spline), (1, "velocity", self._d1)):
+                left = np.array([_segment_end(c, durs, j, order) for j in range(len(durs) - 1)])
+                right = np.asarray(fn(joints))
+                jump = np.linalg.norm(left - right, axis=1)
+                scale = max(1.0, float(np.max(np.abs(right))))
+                if np.any(jump > 1e-6 * scale):
+                    j = int(np.argmax(jump))
+                    raise InputError(f"coefficients[{j + 1}]", f"segment {j + 1} does not continue "
+                                     f"segment {j} in {what} (jump {jump[j]:.3g})")
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return 0.0, float(np.sum(self.durations))
+
+
+def _segment_end(c: FloatArray, durs: FloatArray, j: int, order: int) -> FloatArray:
+    """Value (order 0) or derivative (order 1) of segment ``j`` at its end."""
+    deg = c.shape[0] - 1
+    s = durs[j]
+    powers = np.arange(deg, -1, -1)
+    coef = c[:, j, :]
+    if order == 1:
+        coef = coef[:-1] * powers[:-1, None]
+        powers = powers[:-1] - 1
+    return (coef * s ** powers[:, None]).sum(axis=0)
+
+
+@dataclass(frozen=True)
+class SampledTrajectory(Trajectory):
+    """Time-stamped samples ``t`` (strictly increasing), ``p`` and optional ``v``, ``a``.
+
+    Interpolation is C2 in every case: a natural cubic spline through ``p`` alone;
+    a quintic Hermite spline through ``(p, v, a)`` when velocities are given (a
+    missing ``a`` is taken from a cubic spline through ``v``).
+    """
+
+    t: FloatArray = field(default_factory=lambda: np.zeros(0))
+    p: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    v: FloatArray | None = None
+    a: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        t = _finite_array(self.t, "t", 1)
+        p = _finite_array(self.p, "p", 2, 3)
+        if len(t) < 2:
+            raise InputError("t", "need at least 2 samples")
+        if len(p) != len(t):
+            raise InputError("p", f"must have one row per time stamp ({len(t)}), got {len(p)}")
+        dt = np.diff(t)
+        if np.any(dt <= 0):
+            raise InputError(f"t[{int(np.argmax(dt <= 0)) + 1}]", "time stamps must be strictly increasing")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "p", p)
+        if self.v is None and self.a is not None:
+            raise InputError("a", "accelerations need velocities too")
+        if self.v is None:
+            spline = interpolate.CubicSpline(t, p, bc_type="natural", extrapolate=False)
+            self._set_spline(interpolate.PPoly(spline.c, spline.x, extrapolate=False))
+            return
+        v = _finite_array(self.v, "v", 2, 3)
+        if v.shape != p.shape:
+            raise InputError("v", f"must have the shape of p {p.shape}, got {v.shape}")
+        if self.a is None:
+            a = interpolate.CubicSpline(t, v, bc_type="natural")(t, 1)
+        else:
+            a = _finite_array(self.a, "a", 2, 3)
+            if a.shape != p.shape:
+                raise InputError("a", f"must have the shape of p {p.shape}, got {a.shape}")
+        object.__setattr__(self, "v", v)
+        object.__setattr__(self, "a", a)
+        y = np.stack([p, v, a], axis=1)  # (n, 3 derivatives, 3 axes)
+        self._set_spline(interpolate.BPoly.from_derivatives(t, y, extrapolate=False))
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return float(self.t[0]), float(self.t[-1])
