@@ -1,0 +1,34 @@
+"""ROTA: Robust Optimal Time Allocation for quadrotor trajectories.
+
+One entry point::
+
+    from rota import retime, RetimeInput, Limits, BSplineTrajectory
+    result = retime(RetimeInput(trajectory=traj, limits=Limits(v_max=2.0, a_max=3.0)))
+    setpoints = result.sample_rate(50.0)
+"""
+
+from rota.errors import InputError
+from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
+from rota.result import RetimeResult, Setpoints
+from rota.retime import retime
+from rota.trajectory import (
+    BSplineTrajectory,
+    PolynomialTrajectory,
+    SampledTrajectory,
+    Trajectory,
+)
+
+__all__ = [
+    "BSplineTrajectory",
+    "InputError",
+    "Limits",
+    "PolynomialTrajectory",
+    "RetimeInput",
+    "RetimeResult",
+    "SampledTrajectory",
+    "Setpoints",
+    "SolverSettings",
+    "Trajectory",
+    "make_grid",
+    "retime",
+]

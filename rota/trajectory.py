@@ -57,7 +57,9 @@ class Trajectory:
     _d1: object = field(init=False, repr=False, compare=False)
     _d2: object = field(init=False, repr=False, compare=False)
 
-    def _set_spline(self, spline: interpolate.PPoly | interpolate.BSpline | interpolate.BPoly) -> None:
+    def _set_spline(
+        self, spline: interpolate.PPoly | interpolate.BSpline | interpolate.BPoly
+    ) -> None:
         object.__setattr__(self, "_spline", spline)
         object.__setattr__(self, "_d1", spline.derivative(1))
         object.__setattr__(self, "_d2", spline.derivative(2))
@@ -123,8 +125,11 @@ class BSplineTrajectory(Trajectory):
         else:
             knots = _finite_array(self.knots, "knots", 1)
             if len(knots) != n + k + 1:
-                raise InputError("knots", f"must have len(control_points) + degree + 1 = "
-                                 f"{n + k + 1} entries, got {len(knots)}")
+                raise InputError(
+                    "knots",
+                    f"must have len(control_points) + degree + 1 = "
+                    f"{n + k + 1} entries, got {len(knots)}",
+                )
             if np.any(np.diff(knots) < 0):
                 raise InputError("knots", "must be non-decreasing")
             if knots[n] <= knots[k]:
@@ -158,8 +163,10 @@ class PolynomialTrajectory(Trajectory):
             raise InputError(f"durations[{int(np.argmax(durs <= 0))}]", "must be positive")
         coefs = _finite_array(self.coefficients, "coefficients", 3)
         if coefs.shape[0] != len(durs) or coefs.shape[1] != 3:
-            raise InputError("coefficients", f"must have shape (segments={len(durs)}, 3, degree+1), "
-                             f"got {coefs.shape}")
+            raise InputError(
+                "coefficients",
+                f"must have shape (segments={len(durs)}, 3, degree+1), got {coefs.shape}",
+            )
         if coefs.shape[2] < 3:
             raise InputError("coefficients", "polynomials need degree >= 2 (acceleration)")
         object.__setattr__(self, "durations", durs)
@@ -178,8 +185,11 @@ class PolynomialTrajectory(Trajectory):
                 scale = max(1.0, float(np.max(np.abs(right))))
                 if np.any(jump > 1e-6 * scale):
                     j = int(np.argmax(jump))
-                    raise InputError(f"coefficients[{j + 1}]", f"segment {j + 1} does not continue "
-                                     f"segment {j} in {what} (jump {jump[j]:.3g})")
+                    raise InputError(
+                        f"coefficients[{j + 1}]",
+                        f"segment {j + 1} does not continue "
+                        f"segment {j} in {what} (jump {jump[j]:.3g})",
+                    )
 
     @property
     def domain(self) -> tuple[float, float]:
@@ -221,7 +231,9 @@ class SampledTrajectory(Trajectory):
             raise InputError("p", f"must have one row per time stamp ({len(t)}), got {len(p)}")
         dt = np.diff(t)
         if np.any(dt <= 0):
-            raise InputError(f"t[{int(np.argmax(dt <= 0)) + 1}]", "time stamps must be strictly increasing")
+            raise InputError(
+                f"t[{int(np.argmax(dt <= 0)) + 1}]", "time stamps must be strictly increasing"
+            )
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "p", p)
         if self.v is None and self.a is not None:

@@ -1,0 +1,156 @@
+"""The plain input of :func:`rota.retime` and the trajectory-time grid (paper Eq. 17).
+
+Everything a re-time needs is in one frozen :class:`RetimeInput`; everything it
+produces is in one :class:`rota.result.RetimeResult` (ruckig-style).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rota.errors import InputError
+from rota.trajectory import Trajectory
+
+FloatArray = NDArray[np.float64]
+
+
+def _positive(value: float, name: str) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(name, f"must be a number, got {value!r}") from None
+    if not np.isfinite(x) or x <= 0:
+        raise InputError(name, f"must be a positive finite number, got {value!r}")
+    return x
+
+
+def _vector3(value: object, name: str) -> FloatArray:
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(name, f"must be 3 numbers, got {value!r}") from None
+    if arr.shape != (3,):
+        raise InputError(name, f"must be 3 numbers (x, y, z), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(name, "must be finite (got NaN or inf)")
+    return arr
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Kinematic limits: speed on the velocity norm (m/s), acceleration per axis (m/s^2).
+
+    Paper Eq. 11c uses per-axis boxes for both; we bound the speed (the norm),
+    which is what users mean by "max velocity" and what the SOCP handles exactly
+    (Eq. 23). A scalar ``a_max`` applies to all three axes.
+    """
+
+    v_max: float
+    a_max: float | tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "v_max", _positive(self.v_max, "limits.v_max"))
+        a = (
+            np.broadcast_to(np.asarray(self.a_max, dtype=float), (3,))
+            if np.ndim(self.a_max) == 0
+            else np.asarray(self.a_max, dtype=float)
+        )
+        if a.shape != (3,):
+            raise InputError(
+                "limits.a_max", f"must be one number or 3 (x, y, z), got {self.a_max!r}"
+            )
+        vals = tuple(_positive(x, f"limits.a_max[{k}]") for k, x in enumerate(a))
+        object.__setattr__(self, "a_max", vals)
+
+    @property
+    def a_max_vec(self) -> FloatArray:
+        return np.asarray(self.a_max, dtype=float)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Clarabel settings that matter for ROTA (see :mod:`rota.solver`)."""
+
+    tol: float = 1e-7
+    max_iter: int = 200
+    time_limit: float = 5.0
+    verbose: bool = False
+
+
+@dataclass(frozen=True)
+class RetimeInput:
+    """Everything :func:`rota.retime` needs.
+
+    Attributes:
+        trajectory: the path sigma(tau) to re-time (paper Eq. 1).
+        limits: speed and per-axis acceleration limits (Eq. 11c).
+        smoothness: lambda, the weight of the smoothness term (Eq. 10); the
+            authors use 0.5. 0 gives the time-optimal mapping.
+        dtau: requested trajectory-time step (Eq. 17); the grid uses the
+            nearest step that divides the duration evenly (never larger).
+        speed_limits: optional per-node speed limits (m/s) on the grid of
+            :func:`make_grid` (length N + 1); ``inf`` means no extra limit. This
+            is the hook the chance constraints (Sec. III-C) plug into.
+        start_velocity: velocity of the vehicle at the start (m/s, same frame as
+            the trajectory); it must point along the path. Zero = at rest.
+        start_acceleration: acceleration at the start, or None to leave it free.
+            Only its component that the path can produce is imposed.
+        end_velocity: velocity at the end; zero (rest) by default.
+    """
+
+    trajectory: Trajectory
+    limits: Limits
+    smoothness: float = 0.5
+    dtau: float = 0.1
+    speed_limits: FloatArray | None = None
+    start_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    start_acceleration: FloatArray | None = None
+    end_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    solver: SolverSettings = field(default_factory=SolverSettings)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.trajectory, Trajectory):
+            raise InputError(
+                "trajectory", f"must be a rota Trajectory, got {type(self.trajectory)}"
+            )
+        if not isinstance(self.limits, Limits):
+            raise InputError("limits", f"must be a rota.Limits, got {type(self.limits)}")
+        lam = float(self.smoothness)
+        if not np.isfinite(lam) or lam < 0:
+            raise InputError("smoothness", f"must be a finite number >= 0, got {self.smoothness!r}")
+        object.__setattr__(self, "smoothness", lam)
+        dtau = _positive(self.dtau, "dtau")
+        if dtau > self.trajectory.duration:
+            dtau = self.trajectory.duration
+        object.__setattr__(self, "dtau", dtau)
+        object.__setattr__(self, "start_velocity", _vector3(self.start_velocity, "start_velocity"))
+        object.__setattr__(self, "end_velocity", _vector3(self.end_velocity, "end_velocity"))
+        if self.start_acceleration is not None:
+            object.__setattr__(
+                self, "start_acceleration", _vector3(self.start_acceleration, "start_acceleration")
+            )
+        if self.speed_limits is not None:
+            lim = np.asarray(self.speed_limits, dtype=float)
+            n = len(make_grid(self.trajectory, dtau))
+            if lim.shape != (n,):
+                raise InputError(
+                    "speed_limits",
+                    f"must have one value per grid node ({n}), got shape {lim.shape}",
+                )
+            if np.any(np.isnan(lim)) or np.any(lim <= 0):
+                raise InputError("speed_limits", "must be positive (inf for no limit), no NaN")
+            object.__setattr__(self, "speed_limits", lim)
+
+
+def make_grid(trajectory: Trajectory, dtau: float) -> FloatArray:
+    """Trajectory-time nodes ``tau_0 .. tau_N`` (paper Eq. 17).
+
+    ``N = ceil(T / dtau)``, and the step is ``T / N`` so the grid ends exactly at
+    the trajectory's end.
+    """
+    t0, t1 = trajectory.domain
+    n = max(1, int(np.ceil((t1 - t0) / dtau - 1e-9)))
+    return np.linspace(t0, t1, n + 1)

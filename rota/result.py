@@ -1,0 +1,109 @@
+"""The plain output of :func:`rota.retime`: status in words, the time mapping, and
+a sampler that turns it into position/velocity/acceleration setpoints (Eqs. 3-5)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rota.solver import SolverStats
+from rota.timemap import TimeMap
+from rota.trajectory import Trajectory
+
+FloatArray = NDArray[np.float64]
+
+OPTIMAL = "optimal"
+FALLBACK = "fallback"
+
+
+@dataclass(frozen=True)
+class Setpoints:
+    """Re-timed states at real times ``t``: arrays ``(n,)`` and ``(n, 3)``."""
+
+    t: FloatArray
+    tau: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+
+
+@dataclass(frozen=True)
+class RetimeResult:
+    """Outcome of a re-time.
+
+    Attributes:
+        status: ``"optimal"`` (the SOCP was solved and its solution checked) or
+            ``"fallback"`` (it could not be: ``message`` says why in words, and the
+            time mapping is the authors' fallback, the input uniformly slowed down
+            until it meets the limits).
+        message: human-readable explanation; empty when optimal.
+        timemap: the time mapping tau = h(t) on the grid.
+        trajectory: the input path.
+        solver: what Clarabel reported (None when it was not called).
+        speed_limits: the per-node speed limit that was imposed (m/s).
+        extras: additional products of the pipeline (for example braking zones).
+    """
+
+    status: str
+    message: str
+    timemap: TimeMap
+    trajectory: Trajectory
+    solver: SolverStats | None
+    speed_limits: FloatArray
+    extras: dict[str, Any]
+
+    @property
+    def ok(self) -> bool:
+        """True when the optimal mapping is available (not the fallback)."""
+        return self.status == OPTIMAL
+
+    @property
+    def duration(self) -> float:
+        """Real-time duration of the re-timed trajectory (s)."""
+        return self.timemap.duration
+
+    @property
+    def tau(self) -> FloatArray:
+        return self.timemap.tau
+
+    @property
+    def t(self) -> FloatArray:
+        return self.timemap.t
+
+    @property
+    def beta(self) -> FloatArray:
+        return self.timemap.beta
+
+    @property
+    def alpha(self) -> FloatArray:
+        return self.timemap.alpha
+
+    def sample(self, t: ArrayLike) -> Setpoints:
+        """Position, velocity and acceleration at real times ``t`` (vectorised).
+
+        Position is ``sigma(h(t))``, so it lies on the input path; velocity and
+        acceleration follow paper Eqs. 4-5. Times beyond the end hold the end.
+        """
+        tq = np.atleast_1d(np.asarray(t, dtype=float))
+        tau, tau_dot, tau_ddot = self.timemap.evaluate(tq)
+        p, d1, d2 = self.trajectory.evaluate(tau)
+        vel = d1 * tau_dot[:, None]
+        acc = d1 * tau_ddot[:, None] + d2 * (tau_dot**2)[:, None]
+        after = tq >= self.duration
+        if after.any() and np.allclose(self.timemap.beta[-1], 0.0):
+            vel[after] = 0.0
+            acc[after] = 0.0
+        return Setpoints(tq, tau, p, vel, acc)
+
+    def sample_rate(self, rate_hz: float) -> Setpoints:
+        """Setpoints at a fixed rate from t = 0 to the end (inclusive)."""
+        if not np.isfinite(rate_hz) or rate_hz <= 0:
+            raise ValueError(f"rate_hz must be positive, got {rate_hz!r}")
+        n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
+        t = np.arange(n) / rate_hz
+        if t[-1] < self.duration:
+            t = np.append(t, self.duration)
+        return self.sample(t)

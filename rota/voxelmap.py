@@ -1,0 +1,427 @@
+"""Occupancy voxel map and nearest-obstacle queries (paper Alg. 1, lines 3-9).
+
+A :class:`VoxelMap` is a set of occupied voxels on a regular grid, stored as an
+``(n, 3)`` array of voxel *centres* in the ENU world frame (metres).
+
+Grid convention
+---------------
+The grid has spacing ``resolution`` and ``origin`` is a voxel **corner**: voxel
+index ``i = floor((x - origin) / resolution)`` (per axis) has its centre at
+``origin + (i + 0.5) * resolution``. :meth:`VoxelMap.from_points` bins a point
+cloud with this rule; the constructor snaps given centres to the grid (within
+1e-3 of a voxel, to absorb float noise from files and JSON) and rejects centres
+that are farther off.
+
+Distances
+---------
+:meth:`VoxelMap.nearest` returns distances from the query point to the nearest
+occupied voxel *centre*, as the authors' implementation does. The obstacle
+surface can be up to ``sqrt(3)/2 * resolution`` closer; account for it in the
+robot's safety ellipsoid or by :meth:`VoxelMap.inflated` (see
+``docs/safety-model.md``).
+
+JSON shape (``to_dict`` / ``from_dict``), version 1::
+
+    {"schema": "rota/map", "version": 1, "frame": "ENU",
+     "resolution": 0.1, "origin": [0.0, 0.0, 0.0],
+     "occupied": [[x, y, z], ...]}        # voxel centres, metres
+
+All keys are required and no others are accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from rota.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+MAP_SCHEMA = "rota/map"
+MAP_VERSION = 1
+MAP_FRAME = "ENU"
+
+#: Default margin (m) added around the query points' bounding box in
+#: :meth:`VoxelMap.nearest`. It must be at least the braking threshold ``d_th``
+#: (default 1.0 m) so that every obstacle that can make a braking point is found.
+DEFAULT_BBOX_MARGIN = 2.0
+
+_SNAP_TOL = 1e-3  # in voxels
+_CHUNK = 4096  # occupied voxels per chunk in inflated()
+
+
+def _index_name(field: str, idx: tuple[int, ...]) -> str:
+    return field + "".join(f"[{i}]" for i in idx)
+
+
+def _points_array(value: ArrayLike, field: str, allow_empty: bool = True) -> FloatArray:
+    """An ``(n, 3)`` finite float array, errors naming ``field[i][j]``."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(field, f"must be numeric ({exc})") from None
+    if arr.ndim == 1 and arr.size == 0:
+        arr = arr.reshape(0, 3)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(field, f"must have shape (n, 3), got {arr.shape}")
+    if not allow_empty and arr.shape[0] == 0:
+        raise InputError(field, "must not be empty")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise InputError(_index_name(field, idx), "must be finite")
+    return arr
+
+
+def _positive_finite(value: Any, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(field, f"must be a number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v) or v <= 0.0:
+        raise InputError(field, f"must be positive and finite, got {v}")
+    return v
+
+
+def _vector3(value: ArrayLike, field: str) -> FloatArray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(field, f"must be numeric ({exc})") from None
+    if arr.shape != (3,):
+        raise InputError(field, f"must have 3 components (x, y, z), got shape {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        raise InputError(f"{field}[{int(np.argmax(bad))}]", "must be finite")
+    return arr
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    arr = np.ascontiguousarray(arr)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelMap:
+    """Occupied voxels of an occupancy map (ENU, metres).
+
+    Attributes:
+        resolution: voxel edge length (m), positive and finite.
+        occupied: ``(n, 3)`` voxel centres; ``n`` may be 0 (an empty map). Snapped
+            to the grid and de-duplicated on construction (sorted by index).
+        origin: ``(3,)`` a voxel corner of the grid (default: zeros).
+    """
+
+    resolution: float
+    occupied: FloatArray
+    origin: FloatArray = dc_field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        res = _positive_finite(self.resolution, "resolution")
+        origin = _vector3(self.origin, "origin")
+        centres = _points_array(self.occupied, "occupied")
+        rel = (centres - origin) / res - 0.5
+        idx = np.rint(rel)
+        off = np.abs(rel - idx) > _SNAP_TOL
+        if off.any():
+            i, j = (int(k) for k in np.argwhere(off)[0])
+            raise InputError(
+                f"occupied[{i}][{j}]",
+                f"{centres[i, j]!r} is not a voxel centre of the grid (resolution {res}, "
+                f"origin {origin.tolist()}); build maps from raw points with "
+                "VoxelMap.from_points",
+            )
+        idx = np.unique(idx.astype(np.int64), axis=0) if idx.size else idx.astype(np.int64)
+        object.__setattr__(self, "resolution", res)
+        object.__setattr__(self, "origin", _readonly(origin))
+        object.__setattr__(self, "occupied", _readonly(origin + (idx + 0.5) * res))
+        object.__setattr__(self, "_indices", _readonly(idx.reshape(-1, 3)))
+
+    # ------------------------------------------------------------------ basics
+    def __len__(self) -> int:
+        return int(self.occupied.shape[0])
+
+    @property
+    def indices(self) -> NDArray[np.int64]:
+        """``(n, 3)`` integer voxel indices of :attr:`occupied` (same order)."""
+        return self._indices  # type: ignore[attr-defined]
+
+    def __repr__(self) -> str:
+        return (
+            f"VoxelMap(resolution={self.resolution}, occupied=<{len(self)} voxels>, "
+            f"origin={self.origin.tolist()})"
+        )
+
+    # ------------------------------------------------------------ constructors
+    @classmethod
+    def from_points(
+        cls, points: ArrayLike, resolution: float, origin: ArrayLike | None = None
+    ) -> VoxelMap:
+        """Bin a point cloud ``(n, 3)`` into unique occupied voxels (vectorised)."""
+        res = _positive_finite(resolution, "resolution")
+        org = np.zeros(3) if origin is None else _vector3(origin, "origin")
+        pts = _points_array(points, "points")
+        idx = np.floor((pts - org) / res).astype(np.int64)
+        idx = np.unique(idx, axis=0) if idx.size else idx.reshape(0, 3)
+        return cls(res, org + (idx + 0.5) * res, org)
+
+    @classmethod
+    def from_file(
+        cls, path: str | Path, resolution: float, origin: ArrayLike | None = None
+    ) -> VoxelMap:
+        """Read a point cloud and bin it (see :meth:`from_points`).
+
+        Supported: ``.ply`` (``vertex`` element with ``x``, ``y``, ``z``; read with
+        ``plyfile``), ``.pcd`` (fields ``x``, ``y``, ``z``; read with ``pypcd4``),
+        ``.npy`` (an ``(n, 3)`` array, or a structured array with ``x``, ``y``,
+        ``z`` fields) and ``.csv`` (three numeric columns, optionally with a header
+        row naming ``x``, ``y``, ``z`` columns among others).
+        """
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("path", f"no such file: {p}")
+        ext = p.suffix.lower()
+        readers = {".ply": _read_ply, ".pcd": _read_pcd, ".npy": _read_npy, ".csv": _read_csv}
+        if ext not in readers:
+            raise InputError(
+                "path", f"unknown extension {ext!r}; expected one of {sorted(readers)}"
+            )
+        pts = readers[ext](p)
+        return cls.from_points(pts, resolution, origin)
+
+    # -------------------------------------------------------------- operations
+    def inflated(self, radius: float) -> VoxelMap:
+        """Dilate by ``radius`` (m), e.g. the robot's radius.
+
+        A voxel is occupied in the result when its centre lies within ``radius``
+        of an occupied voxel centre (a ball stencil of integer offsets, applied
+        with vectorised broadcasting in chunks). ``radius = 0`` returns a copy.
+        """
+        if isinstance(radius, bool) or not isinstance(radius, (int, float, np.number)):
+            raise InputError("radius", "must be a number")
+        r = float(radius)
+        if not math.isfinite(r) or r < 0.0:
+            raise InputError("radius", f"must be finite and >= 0, got {r}")
+        idx = self.indices
+        k = int(math.floor(r / self.resolution + 1e-9))
+        if k == 0 or len(idx) == 0:
+            return VoxelMap(self.resolution, self.occupied, self.origin)
+        rng = np.arange(-k, k + 1)
+        offs = np.stack(np.meshgrid(rng, rng, rng, indexing="ij"), axis=-1).reshape(-1, 3)
+        offs = offs[(offs**2).sum(axis=1) * self.resolution**2 <= r * r * (1 + 1e-9)]
+        lo = idx.min(axis=0) - k
+        span = idx.max(axis=0) + k - lo + 1
+        if float(np.prod(span.astype(float))) >= 2.0**62:
+            raise InputError("radius", "map extent too large for inflation index keys")
+        mult = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+        base_keys = (idx - lo) @ mult
+        off_keys = offs @ mult
+        keys: list[np.ndarray] = []
+        for s in range(0, len(base_keys), _CHUNK):
+            chunk = (base_keys[s : s + _CHUNK, None] + off_keys[None, :]).ravel()
+            keys.append(np.unique(chunk))
+        allk = np.unique(np.concatenate(keys))
+        out = np.stack([allk // mult[0], (allk // mult[1]) % span[1], allk % span[2]], axis=1)
+        out = out + lo
+        return VoxelMap(self.resolution, self.origin + (out + 0.5) * self.resolution, self.origin)
+
+    def nearest(
+        self, points: ArrayLike, bbox_margin: float = DEFAULT_BBOX_MARGIN
+    ) -> tuple[FloatArray, FloatArray]:
+        """Nearest occupied voxel centre for each query point (paper Alg. 1, l. 5-9, 11).
+
+        As in Alg. 1, only occupied voxels inside the query points' axis-aligned
+        bounding box grown by ``bbox_margin`` (m) go into a k-d tree
+        (``scipy.spatial.cKDTree``); each point is then queried. Every obstacle
+        within ``bbox_margin`` of a query point lies in that box, so results are
+        exact up to ``bbox_margin``; beyond it they are reported as "none":
+
+        Returns:
+            ``(distances (m,), obstacles (m, 3))``. Where no occupied voxel lies
+            within ``bbox_margin`` of the point (in particular for an empty map),
+            the distance is ``inf`` and the obstacle row is ``NaN``.
+            ``bbox_margin=math.inf`` searches the whole map.
+        """
+        pts = _points_array(points, "points")
+        if isinstance(bbox_margin, bool) or not isinstance(bbox_margin, (int, float, np.number)):
+            raise InputError("bbox_margin", "must be a number")
+        margin = float(bbox_margin)
+        if math.isnan(margin) or margin < 0.0:
+            raise InputError("bbox_margin", f"must be >= 0, got {margin}")
+        m = pts.shape[0]
+        dist = np.full(m, np.inf)
+        obst = np.full((m, 3), np.nan)
+        if m == 0 or len(self) == 0:
+            return dist, obst
+        lo = pts.min(axis=0) - margin
+        hi = pts.max(axis=0) + margin
+        occ = self.occupied
+        local = occ[np.all((occ >= lo) & (occ <= hi), axis=1)]
+        if local.shape[0] == 0:
+            return dist, obst
+        tree = cKDTree(local)
+        d, j = tree.query(pts, k=1, distance_upper_bound=margin * (1 + 1e-12))
+        found = np.isfinite(d)
+        dist[found] = d[found]
+        obst[found] = local[j[found]]
+        return dist, obst
+
+    # -------------------------------------------------------------------- JSON
+    def to_dict(self) -> dict[str, Any]:
+        """The versioned JSON-ready dict (see module docstring)."""
+        return {
+            "schema": MAP_SCHEMA,
+            "version": MAP_VERSION,
+            "frame": MAP_FRAME,
+            "resolution": self.resolution,
+            "origin": self.origin.tolist(),
+            "occupied": self.occupied.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> VoxelMap:
+        """Parse :meth:`to_dict`'s shape; errors name the field (``occupied[3][1]``)."""
+        if not isinstance(d, Mapping):
+            raise InputError("map", f"must be an object, got {type(d).__name__}")
+        required = ("schema", "version", "frame", "resolution", "origin", "occupied")
+        for key in required:
+            if key not in d:
+                raise InputError(key, "missing")
+        extra = sorted(set(d) - set(required))
+        if extra:
+            raise InputError(str(extra[0]), f"unknown field (allowed: {', '.join(required)})")
+        if d["schema"] != MAP_SCHEMA:
+            raise InputError("schema", f"must be {MAP_SCHEMA!r}, got {d['schema']!r}")
+        if isinstance(d["version"], bool) or d["version"] != MAP_VERSION:
+            raise InputError("version", f"unsupported version {d['version']!r} (expected 1)")
+        if d["frame"] != MAP_FRAME:
+            raise InputError("frame", f"must be {MAP_FRAME!r}, got {d['frame']!r}")
+        res = _positive_finite(d["resolution"], "resolution")
+        origin = _json_numbers(d["origin"], "origin", (3,))
+        occ = _json_numbers(d["occupied"], "occupied", None)
+        return cls(res, occ, origin)
+
+
+def _json_numbers(value: Any, field: str, shape: tuple[int, ...] | None) -> FloatArray:
+    """Strictly numeric JSON list(s): no bools, strings or nulls; errors name the item."""
+    try:
+        arr = np.array(value)
+        ok = arr.dtype.kind in "iuf"
+    except ValueError:
+        ok = False
+    if ok:
+        arr = arr.astype(float)
+        if shape is None and arr.size == 0:
+            arr = arr.reshape(0, 3)
+        want_ok = arr.shape == shape if shape is not None else (
+            arr.ndim == 2 and arr.shape[1] == 3
+        )
+        if want_ok:
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                idx = tuple(int(i) for i in np.argwhere(bad)[0])
+                raise InputError(_index_name(field, idx), "must be finite")
+            return arr
+    # slow path: find the offending item to name it
+    if shape is not None:
+        _check_vector(value, field, shape[0])
+    else:
+        if not isinstance(value, list):
+            raise InputError(field, f"must be a list of [x, y, z], got {type(value).__name__}")
+        for i, row in enumerate(value):
+            _check_vector(row, f"{field}[{i}]", 3)
+    raise InputError(field, "must be a list of [x, y, z] numbers")  # pragma: no cover
+
+
+def _check_vector(value: Any, field: str, n: int) -> None:
+    if not isinstance(value, list | tuple) or len(value) != n:
+        raise InputError(field, f"must be a list of {n} numbers")
+    for j, x in enumerate(value):
+        if isinstance(x, bool) or not isinstance(x, int | float):
+            raise InputError(f"{field}[{j}]", f"must be a number, got {type(x).__name__}")
+        if not math.isfinite(float(x)):
+            raise InputError(f"{field}[{j}]", "must be finite")
+
+
+# ---------------------------------------------------------------- file readers
+def _read_ply(path: Path) -> FloatArray:
+    from plyfile import PlyData
+
+    try:
+        ply = PlyData.read(str(path))
+    except Exception as exc:  # plyfile raises several types for malformed files
+        raise InputError("path", f"cannot read PLY file {path}: {exc}") from None
+    names = [el.name for el in ply.elements]
+    if "vertex" not in names:
+        raise InputError("path", f"PLY file {path} has no 'vertex' element (has {names})")
+    vertex = ply["vertex"]
+    props = [p.name for p in vertex.properties]
+    for axis in ("x", "y", "z"):
+        if axis not in props:
+            raise InputError("path", f"PLY vertex element lacks property {axis!r} (has {props})")
+    data = vertex.data
+    return np.column_stack([np.asarray(data[a], dtype=float) for a in ("x", "y", "z")])
+
+
+def _read_pcd(path: Path) -> FloatArray:
+    from pypcd4 import PointCloud
+
+    try:
+        pc = PointCloud.from_path(path)
+    except Exception as exc:  # pypcd4 raises several types for malformed files
+        raise InputError("path", f"cannot read PCD file {path}: {exc}") from None
+    fields = list(pc.fields)
+    for axis in ("x", "y", "z"):
+        if axis not in fields:
+            raise InputError("path", f"PCD file lacks field {axis!r} (has {fields})")
+    return np.asarray(pc.numpy(("x", "y", "z")), dtype=float).reshape(-1, 3)
+
+
+def _read_npy(path: Path) -> FloatArray:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise InputError("path", f"cannot read .npy file {path}: {exc}") from None
+    if arr.dtype.names is not None:
+        missing = [a for a in ("x", "y", "z") if a not in arr.dtype.names]
+        if missing:
+            raise InputError("path", f".npy structured array lacks fields {missing}")
+        return np.column_stack([np.asarray(arr[a], dtype=float).ravel() for a in "xyz"])
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError("path", f".npy array must have shape (n, 3), got {arr.shape}")
+    return arr.astype(float)
+
+
+def _read_csv(path: Path) -> FloatArray:
+    with path.open() as fh:
+        first = fh.readline()
+    cells = [c.strip().lower() for c in first.split(",")]
+    try:
+        [float(c) for c in cells]
+        header = None
+    except ValueError:
+        header = cells
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=0 if header is None else 1, ndmin=2)
+    except ValueError as exc:
+        raise InputError("path", f"cannot parse CSV {path}: {exc}") from None
+    if header is not None:
+        missing = [a for a in ("x", "y", "z") if a not in header]
+        if missing:
+            raise InputError("path", f"CSV header lacks columns {missing} (has {header})")
+        cols = [header.index(a) for a in ("x", "y", "z")]
+        if data.size == 0:
+            return np.zeros((0, 3))
+        return data[:, cols]
+    if data.shape[1] != 3:
+        raise InputError("path", f"CSV without header must have 3 columns, got {data.shape[1]}")
+    return data
