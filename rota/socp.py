@@ -14,7 +14,7 @@ Objective (Eqs. 21, 25 with the notes' errata): total time
 of Eq. 9, a quadratic term; the paper's printed linear ``lambda alpha_i`` is a
 typo).
 
-Constraints: speed ``|sigma'|^2 beta <= v^2`` (Eq. 23, an upper bound on beta at
+Constraints: speed ``|sigma'|^2 beta <= v^2`` (Eq. 23; an upper bound on beta at
 the nodes), acceleration per axis ``|sigma'_k alpha_i + sigma''_k beta| <= a_max_k``
 (Eq. 26) at both ends of every interval (alpha jumps at nodes), both also at
 interior check points (see :class:`PathSamples`), and boundary equalities for
@@ -62,7 +62,7 @@ class PathSamples:
     tau: FloatArray  # (N+1,)
     d1: FloatArray  # (N+1, 3) sigma' at the nodes
     d2: FloatArray  # (N+1, 3) sigma'' at the nodes
-    beta_max: FloatArray  # (N+1,) upper bound on beta from speed limits and the cap
+    beta_max: FloatArray  # (N+1,) bound on beta from the node speed limits and the cap
     vlim: FloatArray  # (N+1,) speed limit per node (m/s)
     a_max: FloatArray  # (3,)
     check_interval: NDArray[np.int64]  # (M,) interval index of each check point
@@ -225,7 +225,7 @@ def assemble(path: PathSamples, smoothness: float, boundary: Boundary) -> Socp:
 
     # Speed (Eq. 23) and acceleration (Eq. 26) at every check point. At fraction f
     # of interval i, with beta(f) = (1 - f) beta_i + f beta_{i+1}:
-    #   |sigma'(f)|^2 beta(f) <= v^2       (interior points; nodes are bounds above)
+    #   |sigma'(f)|^2 beta(f) <= v^2       (interior points; the nodes are bounds)
     #   |sigma'_k(f) (beta_{i+1} - beta_i) / 2h + sigma''_k(f) beta(f)| <= a_max_k
     # Rows are scaled by their limit so every right-hand side is 1.
     ci, f = path.check_interval, path.check_fraction

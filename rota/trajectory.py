@@ -41,7 +41,7 @@ def _finite_array(value: ArrayLike, name: str, ndim: int, width: int | None = No
     bad = ~np.isfinite(arr)
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise InputError(f"{name}{list(idx)}", "must be finite (got NaN or inf)")
+        raise InputError(name + "".join(f"[{i}]" for i in idx), "must be finite (got NaN or inf)")
     return arr
 
 
@@ -118,7 +118,10 @@ class BSplineTrajectory(Trajectory):
         if (self.knots is None) == (self.knot_span is None):
             raise InputError("knot_span", "give exactly one of knot_span (uniform) or knots")
         if self.knots is None:
-            span = float(self.knot_span)  # type: ignore[arg-type]
+            try:
+                span = float(self.knot_span)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                span = float("nan")
             if not np.isfinite(span) or span <= 0:
                 raise InputError("knot_span", f"must be a positive number, got {self.knot_span!r}")
             knots = (np.arange(n + k + 1, dtype=float) - k) * span

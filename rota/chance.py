@@ -1,0 +1,395 @@
+"""Chance constraint -> per-sample speed limit (paper Eqs. 10-15).
+
+Model (paper Sec. III-C)
+------------------------
+Robot position ``p ~ N(p_bar, Sigma_p)`` and obstacle ``o ~ N(o_bar, Sigma_o)``
+(diagonal covariances); the robot's safe region is an ellipsoid with semi-axes
+``(a, b, c)``, ``Q_c = diag(1/a^2, 1/b^2, 1/c^2)``; collision means
+``||p - o||_{Q_c} <= 1`` (Eq. 10). In the scaled space ``x -> Q_c^{1/2} x`` the
+ellipsoid is the unit ball (Eq. 12); replacing the ball by its tangent
+half-space at ``a = d / |d|``, ``d = Q_c^{1/2}(p_bar - o_bar)`` (Eq. 13) gives
+(Eq. 14)::
+
+    Pr = 1/2 + 1/2 erf((1 - |d|) / sqrt(2 a^T Sigma^r a)),
+    Sigma^r = Q_c^{1/2} (Sigma_p + Sigma_o) Q_c^{1/2}.
+
+(The paper adds ``Sigma_o`` untransformed; the obstacle covariance lives in the
+same space as the robot's, so it is transformed too.) The half-space contains
+the ball, so the linearised probability is an upper bound of the true one:
+the constraint is conservative.
+
+Velocity relation (Eq. 15): the standard deviation along axis ``k`` is
+``s_k = max(floor, m |v_k| + b)`` with ``|v_k|`` the speed along that axis
+(:class:`UncertaintyModel`). ``Sigma_p = diag(s_x^2, s_y^2, s_z^2)``.
+
+Speed limit
+-----------
+With the velocity ``v * u`` (``u`` the unit tangent of the path), requiring
+``Pr <= Delta`` is ``a^T Sigma^r a <= ((|d| - 1) / z)^2``, ``z = Phi^{-1}(1 -
+Delta)``. The left side is a piecewise quadratic, non-decreasing function of
+``v`` (pieces start where an axis' linear part exceeds ``floor``), so the
+largest admissible ``v`` is found in closed form, vectorised over the samples
+(:func:`speed_limits`). It depends only on the position, the path direction
+and the obstacle - not on the speed - so it enters the SOCP as a fixed
+per-sample bound ``|sigma'(tau_i)|^2 beta_i <= v_lim_i^2``.
+
+Point robot: ``semi_axes = (0, 0, 0)`` is accepted and means a point (a ball of
+radius 0): margin ``|p - o|`` in metres, no scaling. This reproduces the
+reference numbers in the notes (authors' code: no ellipsoid, the map is
+inflated instead).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.special import ndtr, ndtri
+
+from rota.errors import InputError
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+def _number(value: object, name: str, *, lo: float | None = None, lo_open: bool = False,
+            hi: float | None = None, hi_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+        raise InputError(name, f"must be a number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(name, f"must be finite, got {v}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise InputError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
+    if hi is not None and (v > hi or (hi_open and v == hi)):
+        raise InputError(name, f"must be {'<' if hi_open else '<='} {hi}, got {v}")
+    return v
+
+
+def _triple(value: object, name: str) -> tuple[float, float, float]:
+    try:
+        items = tuple(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise InputError(name, "must be three numbers (x, y, z)") from None
+    if len(items) != 3:
+        raise InputError(name, f"must be three numbers (x, y, z), got {len(items)}")
+    out = tuple(_number(x, f"{name}[{i}]", lo=0.0) for i, x in enumerate(items))
+    return out  # type: ignore[return-value]
+
+
+def _rows(value: ArrayLike, name: str, n: int | None = None, allow_nan: bool = False) -> FloatArray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(name, f"must be numeric ({exc})") from None
+    if arr.ndim == 1 and arr.shape == (3,):
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3 or (n is not None and arr.shape[0] != n):
+        want = "(n, 3)" if n is None else f"({n}, 3)"
+        raise InputError(name, f"must have shape {want}, got {arr.shape}")
+    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+    if bad.any():
+        i, j = (int(k) for k in np.argwhere(bad)[0])
+        raise InputError(f"{name}[{i}][{j}]", "must be finite")
+    return arr
+
+
+@dataclass(frozen=True)
+class UncertaintyModel:
+    """Velocity -> position standard deviation (paper Eq. 15).
+
+    ``s_k = max(floor, m * |v_k| + b)`` per axis ``k``. Paper values ``m = 0.2``,
+    ``b = -0.1`` (no uncertainty below 0.5 m/s). ``m`` must be ``>= 0`` (more
+    speed never means less uncertainty) and ``floor >= 0`` keeps the std
+    non-negative. A separate object so that learned ``m``, ``b`` can replace it.
+    """
+
+    m: float = 0.2
+    b: float = -0.1
+    floor: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "m", _number(self.m, "m", lo=0.0))
+        object.__setattr__(self, "b", _number(self.b, "b"))
+        object.__setattr__(self, "floor", _number(self.floor, "floor", lo=0.0))
+
+    def std(self, velocity: ArrayLike) -> FloatArray:
+        """Per-axis position std ``(n, 3)`` for velocities ``(n, 3)`` (Eq. 15)."""
+        vel = _rows(velocity, "velocity")
+        return np.maximum(self.floor, self.m * np.abs(vel) + self.b)
+
+
+@dataclass(frozen=True)
+class ChanceParams:
+    """Parameters of the chance constraint (Eqs. 10-14) and the speed limits.
+
+    Attributes:
+        delta: per-sample collision probability bound ``Delta`` (paper: 0.01 %).
+        semi_axes: robot safety ellipsoid ``(a, b, c)`` in metres (ENU x, y, z).
+            Default 0.3 m: a 250-450 mm class quadrotor has a propeller-tip radius
+            of about 0.15-0.25 m; 0.3 m adds a few centimetres for the distance
+            from the obstacle voxel centre to its face. Isotropic because the
+            nearest obstacle may lie in any direction and the vehicle tilts.
+            ``(0, 0, 0)`` is a point robot (the authors' setting, who inflate the
+            map instead; do not do both).
+        obstacle_std: per-axis obstacle position std (m). Default 0.03 m: the
+            quantisation std of a 0.1 m voxel (uniform over a voxel of width
+            ``r`` has std ``r / sqrt(12)``, 0.029 m); use ``0.29 * resolution``
+            for other maps, more if the map itself is noisy.
+        v_floor: lowest limit returned (m/s). Default 0.5 m/s as the authors; with
+            the paper's model there is no uncertainty below 0.5 m/s.
+        v_max: highest limit returned (m/s), the limit where the constraint is
+            inactive. Default 3.0 m/s, the fastest setting in the paper's tests.
+            The optimiser's own ``v_max`` still applies on top.
+    """
+
+    delta: float = 1e-4
+    semi_axes: tuple[float, float, float] = (0.3, 0.3, 0.3)
+    obstacle_std: tuple[float, float, float] = (0.03, 0.03, 0.03)
+    v_floor: float = 0.5
+    v_max: float = 3.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "delta", _number(self.delta, "delta", lo=0.0, lo_open=True, hi=1.0, hi_open=True)
+        )
+        axes = _triple(self.semi_axes, "semi_axes")
+        if any(x == 0.0 for x in axes) and any(x > 0.0 for x in axes):
+            raise InputError(
+                "semi_axes", "must be all positive, or all zero for a point robot"
+            )
+        object.__setattr__(self, "semi_axes", axes)
+        object.__setattr__(self, "obstacle_std", _triple(self.obstacle_std, "obstacle_std"))
+        vf = _number(self.v_floor, "v_floor", lo=0.0)
+        vm = _number(self.v_max, "v_max", lo=0.0, lo_open=True)
+        if vm < vf:
+            raise InputError("v_max", f"must be >= v_floor ({vf}), got {vm}")
+        object.__setattr__(self, "v_floor", vf)
+        object.__setattr__(self, "v_max", vm)
+
+    @property
+    def point_robot(self) -> bool:
+        return all(x == 0.0 for x in self.semi_axes)
+
+    @property
+    def z(self) -> float:
+        """``Phi^{-1}(1 - delta)``: margin in standard deviations."""
+        return float(-ndtri(self.delta))
+
+
+@dataclass(frozen=True, eq=False)
+class SpeedLimits:
+    """Result of :func:`speed_limits`.
+
+    Attributes:
+        limit: ``(n,)`` speed limit (m/s) clamped to ``[v_floor, v_max]``.
+        unclamped: ``(n,)`` the largest speed satisfying the linearised
+            constraint (``inf`` if unbounded, ``NaN`` where infeasible).
+        infeasible: ``(n,)`` no speed ``>= 0`` satisfies ``Pr <= delta`` (the
+            nominal position is inside the ellipsoid, or the obstacle / floor
+            uncertainty alone is too large); ``limit`` is ``v_floor`` there.
+    """
+
+    limit: FloatArray
+    unclamped: FloatArray
+    infeasible: BoolArray
+    v_floor: float
+
+    @property
+    def floored(self) -> BoolArray:
+        """Feasible samples where ``v_floor`` exceeds the exact limit (constraint violated)."""
+        with np.errstate(invalid="ignore"):
+            return ~self.infeasible & (self.unclamped < self.v_floor)
+
+    @property
+    def violated(self) -> BoolArray:
+        """Samples where ``limit`` does not satisfy ``Pr <= delta``."""
+        return self.infeasible | self.floored
+
+
+def _geometry(
+    p: FloatArray, obstacle: FloatArray, params: ChanceParams
+) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+    """Margin, per-axis variance weights, obstacle variance term, has-obstacle mask.
+
+    The Eq. 14 constraint reads ``margin / sqrt(sum_k w_k (s_k^2 + so_k^2))``
+    with ``margin = |d| - 1`` and ``w_k = (a_k / semi_k)^2`` (scaled space), or
+    ``margin = |p - o|`` and ``w_k = a_k^2`` for a point robot. ``margin`` is
+    ``-inf`` where the nominal position coincides with the obstacle.
+    """
+    has = np.isfinite(obstacle).all(axis=1)
+    diff = np.where(has[:, None], p - np.where(has[:, None], obstacle, 0.0), 1.0)
+    if params.point_robot:
+        scaled = diff
+        inv = np.ones(3)
+    else:
+        inv = 1.0 / np.asarray(params.semi_axes)
+        scaled = diff * inv
+    norm = np.linalg.norm(scaled, axis=1)
+    zero = norm == 0.0
+    a = scaled / np.where(zero, 1.0, norm)[:, None]
+    w = (a * inv) ** 2
+    margin = norm if params.point_robot else norm - 1.0
+    margin = np.where(zero, -np.inf, margin)
+    obs_var = w @ (np.asarray(params.obstacle_std) ** 2)
+    return margin, w, obs_var, has
+
+
+def collision_probability(
+    p_mean: ArrayLike,
+    velocity: ArrayLike,
+    obstacle: ArrayLike,
+    model: UncertaintyModel | None = None,
+    params: ChanceParams | None = None,
+) -> FloatArray:
+    """Linearised collision probability per sample (paper Eq. 14).
+
+    Args:
+        p_mean: ``(n, 3)`` nominal robot positions.
+        velocity: ``(n, 3)`` velocities (set ``Sigma_p`` via Eq. 15).
+        obstacle: ``(n, 3)`` nominal obstacle positions; NaN rows mean "no
+            obstacle" (probability 0).
+
+    Zero total variance gives 0 outside the ellipsoid and 1 on or inside it; a
+    nominal position inside the ellipsoid gives at least 1/2 (and exactly 1 when
+    it coincides with the obstacle).
+    """
+    model = UncertaintyModel() if model is None else model
+    params = ChanceParams() if params is None else params
+    p = _rows(p_mean, "p_mean")
+    n = p.shape[0]
+    vel = _rows(velocity, "velocity", n)
+    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
+    margin, w, obs_var, has = _geometry(p, obs, params)
+    var = np.einsum("ij,ij->i", w, model.std(vel) ** 2) + obs_var
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pr = ndtr(-margin / np.sqrt(var))
+    pr = np.where(var > 0.0, pr, np.where(margin > 0.0, 0.0, 1.0))
+    pr = np.where(np.isneginf(margin), 1.0, pr)
+    return np.where(has, pr, 0.0)
+
+
+def speed_limits(
+    p: ArrayLike,
+    direction: ArrayLike,
+    obstacle: ArrayLike,
+    model: UncertaintyModel | None = None,
+    params: ChanceParams | None = None,
+) -> SpeedLimits:
+    """Largest speed along ``direction`` with linearised ``Pr <= delta`` (Eqs. 14-15).
+
+    For each sample, finds ``v* = max {v >= 0 : Pr(v * u) <= delta}`` where ``u``
+    is ``direction`` normalised (zero rows mean the speed does not move the
+    vehicle: the limit is then ``v_max`` or infeasible). The constraint
+    ``sum_k w_k s_k(v)^2 <= R^2``, ``R = margin / z``, is piecewise quadratic in
+    ``v`` with pieces split at ``(floor - b) / (m |u_k|)``; each piece is solved
+    in closed form for all samples at once. The result is clamped to
+    ``[v_floor, v_max]``; samples without an obstacle (NaN rows) get ``v_max``.
+
+    The limit depends on position, direction and obstacle only, so it is a fixed
+    bound ``|sigma'_i|^2 beta_i <= limit_i^2`` in the SOCP.
+    """
+    model = UncertaintyModel() if model is None else model
+    params = ChanceParams() if params is None else params
+    pos = _rows(p, "p")
+    n = pos.shape[0]
+    u = _rows(direction, "direction", n)
+    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
+    un = np.linalg.norm(u, axis=1)
+    u = u / np.where(un > 0.0, un, 1.0)[:, None]
+
+    margin, w, obs_var, has = _geometry(pos, obs, params)
+    z = params.z
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r2 = np.where(margin > 0.0, (margin / z) ** 2 if z > 0 else np.inf, -np.inf)
+    rem = r2 - obs_var  # budget for sum_k w_k s_k(v)^2
+
+    m, b, fl = model.m, model.b, model.floor
+    g = m * np.abs(u)  # s_k(v) = max(fl, g_k v + b)
+    s_inactive = max(fl, b)
+
+    def f(v: FloatArray) -> FloatArray:
+        s = np.maximum(fl, g * v[:, None] + b)
+        return np.einsum("ij,ij->i", w, s * s)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bp = np.where(g > 0.0, np.maximum(0.0, (fl - b) / g), np.inf)
+    edges = np.concatenate([np.zeros((n, 1)), np.sort(bp, axis=1), np.full((n, 1), np.inf)], 1)
+
+    best = np.full(n, -np.inf)
+    for j in range(4):
+        lo, hi = edges[:, j], edges[:, j + 1]
+        live = np.isfinite(lo) & (hi > lo) if j > 0 else np.ones(n, bool)
+        active = (bp <= lo[:, None]) & (g > 0.0)
+        wa = np.where(active, w, 0.0)
+        qa = np.einsum("ij,ij->i", wa, g * g)
+        qb = 2.0 * b * np.einsum("ij,ij->i", wa, g)
+        qc = b * b * wa.sum(axis=1) + s_inactive**2 * np.where(active, 0.0, w).sum(axis=1)
+        f_lo = f(np.where(live, lo, 0.0))
+        hi_fin = np.isfinite(hi)
+        f_hi = np.where(hi_fin, f(np.where(hi_fin, hi, 0.0)), np.inf)
+        ok_lo = live & (f_lo <= rem)
+        whole = ok_lo & hi_fin & (f_hi <= rem)
+        # largest root of qa v^2 + qb v + (qc - rem) = 0 (qa > 0), stable form
+        c0 = qc - rem
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sq = np.sqrt(np.maximum(qb * qb - 4.0 * qa * c0, 0.0))
+            root = np.where(qb >= 0.0, -2.0 * c0 / (qb + sq), (-qb + sq) / (2.0 * qa))
+        root = np.where(qa > 0.0, root, np.inf)  # constant piece: unbounded
+        root = np.clip(np.nan_to_num(root, nan=-np.inf), lo, hi)
+        cand = np.where(whole, hi, np.where(ok_lo, root, -np.inf))
+        best = np.maximum(best, cand)
+
+    infeasible = has & ~(best >= 0.0)
+    unclamped = np.where(has, np.where(infeasible, np.nan, best), np.inf)
+    clamped = np.clip(np.nan_to_num(unclamped, nan=0.0), params.v_floor, params.v_max)
+    limit = np.where(has, np.where(infeasible, params.v_floor, clamped), params.v_max)
+    return SpeedLimits(limit, unclamped, infeasible, params.v_floor)
+
+
+def monte_carlo_collision_probability(
+    p_mean: ArrayLike,
+    velocity: ArrayLike,
+    obstacle: ArrayLike,
+    model: UncertaintyModel | None = None,
+    params: ChanceParams | None = None,
+    n_samples: int = 10_000,
+    rng: np.random.Generator | int | None = None,
+) -> FloatArray:
+    """Monte-Carlo estimate of the TRUE collision probability (Eq. 11), per sample.
+
+    Draws ``n_samples`` robot positions ``N(p_mean, diag(s^2))`` (``s`` from
+    Eq. 15) and, independently, obstacle positions ``N(obstacle,
+    diag(obstacle_std^2))``, and counts ``||Q_c^{1/2}(p - o)|| <= 1`` - the true
+    ellipsoid, not the linearised half-space. Returns the hit fraction
+    ``(n,)`` (0 for a point robot and for NaN obstacle rows).
+    """
+    model = UncertaintyModel() if model is None else model
+    params = ChanceParams() if params is None else params
+    p = _rows(p_mean, "p_mean")
+    n = p.shape[0]
+    vel = _rows(velocity, "velocity", n)
+    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)):
+        raise InputError("n_samples", "must be an integer")
+    if n_samples < 1:
+        raise InputError("n_samples", f"must be >= 1, got {n_samples}")
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    has = np.isfinite(obs).all(axis=1)
+    out = np.zeros(n)
+    if params.point_robot:
+        return out
+    sp = model.std(vel)
+    so = np.asarray(params.obstacle_std)
+    inv = 1.0 / np.asarray(params.semi_axes)
+    rows = max(1, 2_000_000 // (3 * int(n_samples)))
+    for s in range(0, n, rows):
+        sl = slice(s, min(n, s + rows))
+        k = sl.stop - sl.start
+        robot = p[sl, None, :] + sp[sl, None, :] * gen.standard_normal((k, n_samples, 3))
+        ob = obs[sl, None, :] + so * gen.standard_normal((k, n_samples, 3))
+        hit = (((robot - ob) * inv) ** 2).sum(axis=2) <= 1.0
+        out[sl] = hit.mean(axis=1)
+    return np.where(has, out, 0.0)

@@ -1,0 +1,153 @@
+"""The ``rota`` command line.
+
+Commands (``rota COMMAND --help`` for each):
+
+* ``rota retime IN.json -o OUT.json [--plot OUT.png]``: re-time a trajectory
+  message (``docs/protocol.md``) and write a result message.
+* ``rota example [-o FILE]``: write the bundled example trajectory.
+* ``rota demo [--out DIR]``: the main job (see README).
+
+Exit status: 0 when the optimal re-time was found, 3 when the result is the
+fallback (the result is still written, its ``message`` says why), 2 for bad
+input (the error names the offending field).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from rota.errors import InputError
+from rota.problem import Limits, RetimeInput
+from rota.retime import retime
+from rota.schema import dump, load, result_to_dict, trajectory_from_dict
+from rota.trajectory import Trajectory
+
+EXIT_OK, EXIT_INPUT, EXIT_FALLBACK = 0, 2, 3
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        msg = f"expected comma-separated numbers, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from None
+
+
+def _vec3(text: str) -> list[float]:
+    values = _floats(text)
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected x,y,z, got {text!r}")
+    return values
+
+
+def add_retime_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by every command that re-times."""
+    g = p.add_argument_group("re-timing")
+    g.add_argument("--v-max", type=float, default=2.0, help="speed limit, m/s (default 2.0)")
+    g.add_argument("--a-max", type=_floats, default=[3.0],
+                   help="acceleration limit per axis, m/s^2: one value or ax,ay,az (default 3)")
+    g.add_argument("--lambda", dest="smoothness", type=float, default=0.5,
+                   help="smoothness weight lambda (paper Eq. 10; default 0.5, 0 = time-optimal)")
+    g.add_argument("--dtau", type=float, default=0.1,
+                   help="trajectory-time grid step, s (default 0.1)")
+    g.add_argument("--start-velocity", type=_vec3, default=[0.0, 0.0, 0.0],
+                   help="vehicle velocity at the start, x,y,z m/s (default rest)")
+
+
+def build_input(args: argparse.Namespace, trajectory: Trajectory) -> RetimeInput:
+    a_max = args.a_max[0] if len(args.a_max) == 1 else tuple(args.a_max)
+    return RetimeInput(trajectory=trajectory, limits=Limits(args.v_max, a_max),
+                       smoothness=args.smoothness, dtau=args.dtau,
+                       start_velocity=np.asarray(args.start_velocity))
+
+
+def cmd_retime(args: argparse.Namespace) -> int:
+    msg = trajectory_from_dict(load(args.input))
+    inp = build_input(args, msg.trajectory)
+    result = retime(inp)
+    dump(result_to_dict(result, msg, rate_hz=args.rate), args.output)
+    print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
+          f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""))
+    if args.plot:
+        from rota.plot import plot_result
+
+        print(f"plot: {plot_result(result, inp.limits, args.plot, title=msg.id)}")
+    return EXIT_OK if result.ok else EXIT_FALLBACK
+
+
+def example_path() -> Path:
+    return Path(str(resources.files("rota") / "data" / "example_trajectory.json"))
+
+
+def cmd_example(args: argparse.Namespace) -> int:
+    text = example_path().read_text()
+    if args.output == "-":
+        sys.stdout.write(text)
+    else:
+        Path(args.output).write_text(text)
+        print(f"wrote {args.output}")
+    return EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Re-time the bundled example (paper sample trajectory 1 limits) and plot it."""
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    msg = trajectory_from_dict(json.loads(example_path().read_text()))
+    limits = Limits(1.0, 3.0)
+    result = retime(RetimeInput(trajectory=msg.trajectory, limits=limits))
+    dump(result_to_dict(result, msg, rate_hz=50.0), out / "example_result.json")
+    from rota.plot import plot_result
+
+    png = plot_result(result, limits, out / "example_retime.png",
+                      title="Example: planned at 1 m/s, 3 m/s² - re-timed with ROTA")
+    print(f"example trajectory: {msg.trajectory.duration:.2f} s as planned -> "
+          f"{result.duration:.2f} s re-timed ({result.status}) {result.message}")
+    print(f"wrote {out / 'example_result.json'} and {png}")
+    return EXIT_OK if result.ok else EXIT_FALLBACK
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rota", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("retime", help="re-time a trajectory message (JSON)")
+    p.add_argument("input", help="rota/trajectory JSON file")
+    p.add_argument("-o", "--output", required=True, help="where to write the rota/result JSON")
+    p.add_argument("--plot", help="also write a plot (PNG/SVG/PDF)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="also write setpoints sampled at this rate (Hz)")
+    add_retime_options(p)
+    p.set_defaults(func=cmd_retime)
+
+    p = sub.add_parser("example", help="write the bundled example trajectory")
+    p.add_argument("-o", "--output", default="-", help="file, or - for stdout (default)")
+    p.set_defaults(func=cmd_example)
+
+    p = sub.add_parser("demo", help="the main job: see README")
+    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = make_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except InputError as exc:
+        print(f"rota {args.command}: bad input: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as exc:
+        print(f"rota {args.command}: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

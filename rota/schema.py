@@ -1,0 +1,213 @@
+"""Versioned JSON messages shared by the ``rota`` CLI and the flight service.
+
+Documented in ``docs/protocol.md``. Every message is a JSON object with
+``"schema"`` (its kind) and ``"version"``; readers reject unknown kinds and
+versions, and every validation error names the offending field with a path such
+as ``control_points[3][1]``.
+
+Kinds defined here: ``rota/trajectory`` (input) and ``rota/result`` (output).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rota.errors import InputError
+from rota.result import RetimeResult
+from rota.solver import SolverStats
+from rota.timemap import TimeMap
+from rota.trajectory import (
+    BSplineTrajectory,
+    PolynomialTrajectory,
+    SampledTrajectory,
+    Trajectory,
+)
+
+VERSION = 1
+TRAJECTORY = "rota/trajectory"
+RESULT = "rota/result"
+FRAMES = ("ENU", "NED")
+
+
+@dataclass(frozen=True)
+class TrajectoryMessage:
+    """A trajectory with its envelope: id, coordinate frame and time stamp."""
+
+    trajectory: Trajectory
+    id: str = ""
+    frame: str = "ENU"
+    stamp: float | None = None  # UNIX time (s) at which the planner published it
+
+
+def _require(d: dict[str, Any], key: str) -> Any:
+    if key not in d:
+        raise InputError(key, "is required")
+    return d[key]
+
+
+def check_envelope(d: object, kind: str) -> dict[str, Any]:
+    """Check that ``d`` is a message of ``kind`` in a version we read."""
+    if not isinstance(d, dict):
+        raise InputError("(message)", f"must be a JSON object, got {type(d).__name__}")
+    if d.get("schema") != kind:
+        raise InputError("schema", f"must be {kind!r}, got {d.get('schema')!r}")
+    if d.get("version") != VERSION:
+        raise InputError("version", f"version {d.get('version')!r} is not supported "
+                         f"(this build reads version {VERSION})")
+    return d
+
+
+def _optional_str(d: dict[str, Any], key: str, default: str) -> str:
+    value = d.get(key, default)
+    if not isinstance(value, str):
+        raise InputError(key, f"must be a string, got {type(value).__name__}")
+    return value
+
+
+def trajectory_from_dict(d: object) -> TrajectoryMessage:
+    """Parse a ``rota/trajectory`` message (see ``docs/protocol.md``)."""
+    d = check_envelope(d, TRAJECTORY)
+    frame = _optional_str(d, "frame", "ENU").upper()
+    if frame not in FRAMES:
+        raise InputError("frame", f"must be one of {FRAMES}, got {d.get('frame')!r}")
+    stamp = d.get("stamp")
+    if stamp is not None and (not isinstance(stamp, int | float) or isinstance(stamp, bool)
+                              or not math.isfinite(stamp)):
+        raise InputError("stamp", f"must be a finite number (UNIX seconds), got {stamp!r}")
+    kind = _require(d, "type")
+    try:
+        if kind == "bspline":
+            traj: Trajectory = BSplineTrajectory(
+                control_points=_require(d, "control_points"),
+                degree=_require_int(d, "degree", 3),
+                knot_span=d.get("knot_span"),
+                knots=d.get("knots"),
+            )
+        elif kind == "polynomial":
+            traj = PolynomialTrajectory(durations=_require(d, "durations"),
+                                        coefficients=_require(d, "coefficients"))
+        elif kind == "samples":
+            traj = SampledTrajectory(t=_require(d, "t"), p=_require(d, "p"), v=d.get("v"),
+                                     a=d.get("a"))
+        else:
+            raise InputError("type", f"must be 'bspline', 'polynomial' or 'samples', got {kind!r}")
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError("(trajectory)", str(exc)) from None
+    return TrajectoryMessage(traj, id=_optional_str(d, "id", ""), frame=frame,
+                             stamp=None if stamp is None else float(stamp))
+
+
+def _require_int(d: dict[str, Any], key: str, default: int) -> int:
+    value = d.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(key, f"must be an integer, got {value!r}")
+    return value
+
+
+def trajectory_to_dict(msg: TrajectoryMessage) -> dict[str, Any]:
+    """Serialise a trajectory message; inverse of :func:`trajectory_from_dict`."""
+    traj = msg.trajectory
+    out: dict[str, Any] = {"schema": TRAJECTORY, "version": VERSION, "id": msg.id,
+                           "frame": msg.frame}
+    if msg.stamp is not None:
+        out["stamp"] = msg.stamp
+    if isinstance(traj, BSplineTrajectory):
+        out.update(type="bspline", degree=int(traj.degree),
+                   control_points=traj.control_points.tolist())
+        if traj.knot_span is not None:
+            out["knot_span"] = float(traj.knot_span)
+        else:
+            out["knots"] = np.asarray(traj.knots).tolist()
+    elif isinstance(traj, PolynomialTrajectory):
+        out.update(type="polynomial", durations=traj.durations.tolist(),
+                   coefficients=traj.coefficients.tolist())
+    elif isinstance(traj, SampledTrajectory):
+        out.update(type="samples", t=traj.t.tolist(), p=traj.p.tolist())
+        if traj.v is not None:
+            out["v"] = np.asarray(traj.v).tolist()
+            out["a"] = np.asarray(traj.a).tolist()
+    else:
+        raise TypeError(f"cannot serialise {type(traj).__name__}")
+    return out
+
+
+def result_to_dict(result: RetimeResult, msg: TrajectoryMessage,
+                   rate_hz: float | None = None) -> dict[str, Any]:
+    """Serialise a re-time result; with ``rate_hz`` it also carries setpoints."""
+    out: dict[str, Any] = {
+        "schema": RESULT,
+        "version": VERSION,
+        "id": msg.id,
+        "frame": msg.frame,
+        "status": result.status,
+        "message": result.message,
+        "duration": result.duration,
+        "input_duration": result.trajectory.duration,
+        "tau": result.tau.tolist(),
+        "beta": result.beta.tolist(),
+        "t": result.t.tolist(),
+        "speed_limits": [x if math.isfinite(x) else None for x in result.speed_limits.tolist()],
+        "solver": None if result.solver is None else {
+            "status": result.solver.status,
+            "iterations": result.solver.iterations,
+            "solve_time": result.solver.solve_time,
+            "wall_time": result.solver.wall_time,
+            "objective": result.solver.objective if math.isfinite(result.solver.objective)
+            else None,
+        },
+        "braking_zones": [list(map(float, iv)) for iv in result.extras.get("intervals", ())],
+        "trajectory": trajectory_to_dict(msg),
+    }
+    if rate_hz is not None:
+        sp = result.sample_rate(rate_hz)
+        out["setpoints"] = {"rate": rate_hz, "t": sp.t.tolist(), "p": sp.position.tolist(),
+                            "v": sp.velocity.tolist(), "a": sp.acceleration.tolist()}
+    return out
+
+
+def result_from_dict(d: object) -> tuple[RetimeResult, TrajectoryMessage]:
+    """Rebuild a result (and its trajectory) from a ``rota/result`` message."""
+    d = check_envelope(d, RESULT)
+    try:
+        msg = trajectory_from_dict(_require(d, "trajectory"))
+    except InputError as exc:
+        raise exc.within("trajectory") from None
+    tau = np.asarray(_require(d, "tau"), dtype=float)
+    beta = np.asarray(_require(d, "beta"), dtype=float)
+    if tau.ndim != 1 or tau.shape != beta.shape or len(tau) < 2:
+        raise InputError("beta", "tau and beta must be equal-length lists of >= 2 numbers")
+    if not (np.all(np.isfinite(tau)) and np.all(np.isfinite(beta)) and np.all(beta >= 0)):
+        raise InputError("beta", "tau and beta must be finite, beta >= 0")
+    if np.any(np.diff(tau) <= 0):
+        raise InputError("tau", "must be strictly increasing")
+    raw = d.get("speed_limits") or [None] * len(tau)
+    limits = np.array([np.inf if x is None else x for x in raw], dtype=float)
+    s = d.get("solver")
+    stats = None if s is None else SolverStats(str(s["status"]), int(s["iterations"]),
+                                               float(s["solve_time"]), float(s["wall_time"]),
+                                               float("nan") if s["objective"] is None
+                                               else float(s["objective"]))
+    extras = {"intervals": [tuple(iv) for iv in d.get("braking_zones", [])]}
+    result = RetimeResult(str(_require(d, "status")), str(d.get("message", "")),
+                          TimeMap(tau, beta), msg.trajectory, stats, limits, extras)
+    return result, msg
+
+
+def load(path: str | Path) -> Any:
+    """Read a JSON file, turning syntax errors into :class:`InputError`."""
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(str(path), f"is not valid JSON: {exc}") from None
+
+
+def dump(obj: Any, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(obj, indent=1, allow_nan=False) + "\n")
