@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 
 from rota.problem import RetimeInput, make_grid
 from rota.result import FALLBACK, OPTIMAL, RetimeResult
-from rota.socp import STILL, Boundary, PathSamples, assemble, sample_path, violations
+from rota.socp import STILL, Boundary, PathSamples, assemble, sample_path
 from rota.solver import SolverStats, solve
 from rota.timemap import TimeMap
 from rota.trajectory import Trajectory
@@ -20,6 +20,10 @@ FloatArray = NDArray[np.float64]
 TANGENT_TOL = 0.05
 #: Relative tolerance when checking the solver's solution against the constraints.
 CHECK_TOL = 1e-3
+#: A limit broken by more than this at an unconstrained check point triggers a re-solve.
+REFINE_TOL = 2e-4
+#: Solves at most (1 + rounds of constraint generation).
+MAX_ROUNDS = 4
 
 
 class Infeasible(Exception):
@@ -47,17 +51,28 @@ def retime(inp: RetimeInput) -> RetimeResult:
         return fallback(str(exc))
 
     path = sample_path(inp.trajectory, tau, vlim, inp.limits.a_max_vec)
-    x, stats = solve(assemble(path, inp.smoothness, boundary), inp.solver)
-    if x is None:
-        return fallback(_explain(stats), stats)
-    beta = np.maximum(x[: len(tau)], 0.0)
+    rounds = 0
+    while True:
+        rounds += 1
+        x, stats = solve(assemble(path, inp.smoothness, boundary), inp.solver)
+        if x is None:
+            return fallback(_explain(stats), stats)
+        beta = np.maximum(x[: len(tau)], 0.0)
+        # Constraint generation: a limit broken at a candidate check point that
+        # was not constrained gets its whole interval constrained, then re-solve.
+        v2, acc = path.ratios(beta)
+        bad = ~path.active & ((v2 > 1 + REFINE_TOL) | (acc > 1 + REFINE_TOL))
+        if not bad.any() or rounds == MAX_ROUNDS:
+            break
+        path = path.activate(np.unique(path.pt_interval[bad]))
     problem = check_solution(path, beta, boundary)
     timemap = TimeMap(tau, beta)
     if problem is None and not np.isfinite(timemap.duration):
         problem = "the optimal time mapping stops on the way (infinite duration)"
     if problem is not None:
         return fallback(f"solver solution rejected: {problem}", stats)
-    return RetimeResult(OPTIMAL, "", timemap, inp.trajectory, stats, vlim, {})
+    return RetimeResult(OPTIMAL, "", timemap, inp.trajectory, stats, vlim,
+                        {"solve_rounds": rounds})
 
 
 def _boundary(inp: RetimeInput, d1_start: FloatArray, d2_start: FloatArray,
@@ -100,17 +115,18 @@ def _boundary_beta(v: FloatArray, d1: FloatArray, vlim: float, where: str) -> fl
 
 
 def check_solution(path: PathSamples, beta: FloatArray, boundary: Boundary) -> str | None:
-    """Independent check of a solution against the constraints on the grid.
-
-    Returns None when it holds within :data:`CHECK_TOL`, else a description.
-    """
+    """Independent check of a solution against the constraints at the nodes and
+    every candidate check point. None when it holds within :data:`CHECK_TOL`."""
     if not np.all(np.isfinite(beta)):
         return "non-finite beta"
-    over_v, over_a, node = violations(path, beta)
+    v2, acc = path.ratios(beta)
+    over_v = max(float(np.max(beta / path.beta_max)), float(np.max(v2))) - 1
     if over_v > CHECK_TOL:
         return f"speed limit exceeded by {100 * over_v:.2f} %"
-    if over_a > CHECK_TOL:
-        return f"acceleration limit exceeded by {100 * over_a:.2f} % near tau={path.tau[node]:.3f}"
+    k = int(np.argmax(acc))
+    if acc[k] - 1 > CHECK_TOL:
+        return (f"acceleration limit exceeded by {100 * (acc[k] - 1):.2f} % near "
+                f"tau={path.tau[path.pt_interval[k]]:.3f}")
     scale = max(1.0, float(np.max(beta)))
     for name, target, got in (("start", boundary.beta_start, beta[0]),
                               ("end", boundary.beta_end, beta[-1])):

@@ -26,7 +26,7 @@ s in K``, built with vectorised sparse assembly (no loops over samples).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import clarabel
 import numpy as np
@@ -42,21 +42,27 @@ FloatArray = NDArray[np.float64]
 STILL = 1e-6
 #: beta may exceed the median speed-limited beta by at most this factor (tau_dot x 100).
 BETA_CAP_FACTOR = 1e4
-#: Intervals over which |sigma'| changes by more than this ratio get extra check points.
+#: Candidate check points per interval (the interior of a uniform subdivision).
+DENSE = 8
+#: Intervals over which |sigma'| changes by more than this ratio start fully checked.
 REFINE_RATIO = 1.2
-#: Interior check points per refined interval.
-REFINE_POINTS = 7
 
 
 @dataclass(frozen=True)
 class PathSamples:
     """The path and its limits on the grid: what the SOCP needs, nothing more.
 
-    Constraints hold at the nodes and at interior *check points*: the midpoint of
-    every interval, and :data:`REFINE_POINTS` more points in intervals over which
-    the path's speed ``|sigma'|`` changes fast (near a stop, such as a clamped
-    B-spline end). Beta is linear in tau inside an interval, so a check point at
-    fraction ``f`` of interval ``i`` sees ``beta = (1 - f) beta_i + f beta_{i+1}``.
+    Beyond the nodes, the limits are imposed at *check points* inside the
+    intervals. Candidates are the ``DENSE - 1`` interior points of a uniform
+    subdivision of every interval, both of its ends (alpha jumps at nodes) and
+    the path's own breakpoints; ``active`` says which are constrained. The nodes,
+    midpoints and breakpoints always are, and every candidate of an interval over
+    which the path's speed ``|sigma'|`` changes fast (near a stop, such as a
+    clamped B-spline end). The re-timer activates more where a solution violates
+    a limit at a candidate
+    (constraint generation, see :func:`rota.retime.retime`). Beta is linear in tau
+    inside an interval: at fraction ``f`` of interval ``i``,
+    ``beta = (1 - f) beta_i + f beta_{i+1}``.
     """
 
     tau: FloatArray  # (N+1,)
@@ -65,10 +71,11 @@ class PathSamples:
     beta_max: FloatArray  # (N+1,) bound on beta from the node speed limits and the cap
     vlim: FloatArray  # (N+1,) speed limit per node (m/s)
     a_max: FloatArray  # (3,)
-    check_interval: NDArray[np.int64]  # (M,) interval index of each check point
-    check_fraction: FloatArray  # (M,) fraction in [0, 1] of the interval
-    check_d1: FloatArray  # (M, 3)
-    check_d2: FloatArray  # (M, 3)
+    pt_interval: NDArray[np.int64]  # (M,) interval of each candidate check point
+    pt_fraction: FloatArray  # (M,) its fraction in [0, 1] of the interval
+    pt_d1: FloatArray  # (M, 3) sigma' there
+    pt_d2: FloatArray  # (M, 3) sigma'' there
+    active: NDArray[np.bool_]  # (M,) constrained in the SOCP
 
     @property
     def n_intervals(self) -> int:
@@ -78,20 +85,26 @@ class PathSamples:
     def h(self) -> float:
         return float(self.tau[1] - self.tau[0])
 
-    @property
-    def check_vlim(self) -> FloatArray:
-        """Speed limit at each check point: the lower of its interval's two nodes."""
-        i = self.check_interval
-        return np.minimum(self.vlim[i], self.vlim[i + 1])
+    def activate(self, intervals: NDArray[np.int64]) -> PathSamples:
+        """The same path with every candidate of ``intervals`` constrained."""
+        more = self.active | np.isin(self.pt_interval, intervals)
+        return replace(self, active=more)
 
-    def beta_at_checks(self, beta: FloatArray) -> FloatArray:
-        i, f = self.check_interval, self.check_fraction
-        return (1 - f) * beta[i] + f * beta[i + 1]
+    def ratios(self, beta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Speed and acceleration of ``beta`` at every candidate, as fractions of
+        their limits (speed: squared ratio; acceleration: worst axis)."""
+        i, f = self.pt_interval, self.pt_fraction
+        b = (1 - f) * beta[i] + f * beta[i + 1]
+        alpha = np.diff(beta) / (2 * self.h)
+        lim2 = np.minimum(self.vlim[i], self.vlim[i + 1]) ** 2
+        v2 = np.einsum("ij,ij->i", self.pt_d1, self.pt_d1) * b / lim2
+        acc = self.pt_d1 * alpha[i, None] + self.pt_d2 * b[:, None]
+        return v2, np.max(np.abs(acc) / self.a_max, axis=1)
 
 
 def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
                 a_max: FloatArray) -> PathSamples:
-    """Evaluate the path on the grid and at the check points.
+    """Evaluate the path on the grid and at the candidate check points.
 
     ``beta_max`` is the speed bound ``v_i^2 / |sigma'_i|^2`` (Eq. 23); where the path
     stands still (``|sigma'| = 0``, e.g. a B-spline's clamped end) beta is capped at
@@ -101,42 +114,33 @@ def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
     n = len(tau) - 1
     h = np.diff(tau)
     _, d1, d2 = trajectory.evaluate(tau)
-    speed = np.linalg.norm(d1, axis=1)
-    lo = np.minimum(speed[:-1], speed[1:])
-    hi = np.maximum(speed[:-1], speed[1:])
-    refine = np.flatnonzero(hi > REFINE_RATIO * np.maximum(lo, STILL))
-    extra = np.linspace(0, 1, REFINE_POINTS + 3)[1:-1]
-    extra = extra[np.abs(extra - 0.5) > 1e-9]
-    ends = np.arange(n)
-    idx = np.concatenate([ends, np.repeat(refine, len(extra))])
-    frac = np.concatenate([np.full(n, 0.5), np.tile(extra, len(refine))])
+    inner = np.arange(1, DENSE) / DENSE
+    # The path's own breakpoints are candidates too: its acceleration peaks there.
+    bp = trajectory.breakpoints
+    bp_idx = np.clip(np.searchsorted(tau, bp, side="right") - 1, 0, n - 1)
+    bp_frac = (bp - tau[bp_idx]) / h[bp_idx]
+    keep = (bp_frac > 1e-9) & (bp_frac < 1 - 1e-9)
+    idx = np.concatenate([np.repeat(np.arange(n), len(inner)), bp_idx[keep]])
+    frac = np.concatenate([np.tile(inner, n), bp_frac[keep]])
     _, c1, c2 = trajectory.evaluate(tau[idx] + frac * h[idx])
-    # Nodes are check points too (f = 0 and f = 1 of every interval: alpha jumps there).
+    ends = np.arange(n)
     idx = np.concatenate([ends, ends, idx])
     frac = np.concatenate([np.zeros(n), np.ones(n), frac])
     c1 = np.concatenate([d1[:-1], d1[1:], c1])
     c2 = np.concatenate([d2[:-1], d2[1:], c2])
+    speed = np.linalg.norm(d1, axis=1)
+    lo = np.minimum(speed[:-1], speed[1:])
+    hi = np.maximum(speed[:-1], speed[1:])
+    refine = np.flatnonzero(hi > REFINE_RATIO * np.maximum(lo, STILL))
+    active = (frac == 0) | (frac == 1) | (np.abs(frac - 0.5) < 1e-12) | np.isin(idx, refine)
+    active[2 * n + n * len(inner):] = True  # breakpoints
     moving = speed > STILL
     with np.errstate(divide="ignore"):
         beta_v = np.where(moving, vlim**2 / np.maximum(speed, STILL) ** 2, np.inf)
     cap = BETA_CAP_FACTOR * float(np.median(beta_v[moving])) if moving.any() else 1.0
     return PathSamples(tau=tau, d1=d1, d2=d2, beta_max=np.minimum(beta_v, cap), vlim=vlim,
-                       a_max=a_max, check_interval=idx, check_fraction=frac, check_d1=c1,
-                       check_d2=c2)
-
-
-def violations(path: PathSamples, beta: FloatArray) -> tuple[float, float, int]:
-    """Largest relative violation of the speed and acceleration constraints by
-    ``beta`` over the nodes and all check points: ``(speed excess, accel excess,
-    interval of the worst acceleration)``; excess = ratio to the limit minus 1."""
-    alpha = np.diff(beta) / (2 * path.h)
-    b = path.beta_at_checks(beta)
-    v2 = np.einsum("ij,ij->i", path.check_d1, path.check_d1) * b / path.check_vlim**2
-    worst_v = max(float(np.max(beta / path.beta_max)), float(np.max(v2)))
-    acc = path.check_d1 * alpha[path.check_interval, None] + path.check_d2 * b[:, None]
-    ratio = np.max(np.abs(acc) / path.a_max, axis=1)
-    k = int(np.argmax(ratio))
-    return worst_v - 1.0, float(ratio[k]) - 1.0, int(path.check_interval[k])
+                       a_max=a_max, pt_interval=idx, pt_fraction=frac, pt_d1=c1, pt_d2=c2,
+                       active=active)
 
 
 @dataclass(frozen=True)
@@ -228,17 +232,19 @@ def assemble(path: PathSamples, smoothness: float, boundary: Boundary) -> Socp:
     #   |sigma'(f)|^2 beta(f) <= v^2       (interior points; the nodes are bounds)
     #   |sigma'_k(f) (beta_{i+1} - beta_i) / 2h + sigma''_k(f) beta(f)| <= a_max_k
     # Rows are scaled by their limit so every right-hand side is 1.
-    ci, f = path.check_interval, path.check_fraction
+    act = path.active
+    ci, f = path.pt_interval[act], path.pt_fraction[act]
+    pd1, pd2 = path.pt_d1[act], path.pt_d2[act]
     inner = (f > 0) & (f < 1)
-    w = np.einsum("ij,ij->i", path.check_d1[inner], path.check_d1[inner])
-    w = w / path.check_vlim[inner] ** 2
+    lim2 = np.minimum(path.vlim[ci[inner]], path.vlim[ci[inner] + 1]) ** 2
+    w = np.einsum("ij,ij->i", pd1[inner], pd1[inner]) / lim2
     m = int(inner.sum())
     r = np.arange(m)
     block(np.concatenate([r, r]), np.concatenate([ib[ci[inner]], ib[ci[inner] + 1]]),
           np.concatenate([(1 - f[inner]) * w, f[inner] * w]), np.ones(m))
     n_nonneg += m
-    d1 = path.check_d1 / path.a_max
-    d2 = path.check_d2 / path.a_max
+    d1 = pd1 / path.a_max
+    d2 = pd2 / path.a_max
     c_lo = -d1 / (2 * h) + (1 - f)[:, None] * d2  # coefficient on beta_i
     c_hi = d1 / (2 * h) + f[:, None] * d2  # coefficient on beta_{i+1}
     r = np.arange(3 * len(ci))  # row per (check point, axis)

@@ -70,6 +70,16 @@ class Trajectory:
         raise NotImplementedError
 
     @property
+    def breakpoints(self) -> FloatArray:
+        """Trajectory times where the pieces join (B-spline knots, segment ends,
+        sample times) inside the domain: the third derivative may jump there, so
+        the acceleration may peak there."""
+        t0, t1 = self.domain
+        x = np.unique(np.asarray(getattr(self._spline, "x", getattr(self._spline, "t", [])),
+                                 dtype=float))
+        return x[(x > t0) & (x < t1)]
+
+    @property
     def duration(self) -> float:
         """``tau_f - tau_0``: the planner's own duration of the path."""
         t0, t1 = self.domain

@@ -1,0 +1,30 @@
+"""Independent measurement of a re-timed trajectory: finite differences of the
+positions it produces, never the velocities it reports."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rota import RetimeResult
+
+
+def fine_times(result: RetimeResult, refine: int = 10) -> np.ndarray:
+    """Real times of a trajectory-time grid ``refine`` times finer than the solver's."""
+    tau = result.tau
+    fine = np.linspace(tau[0], tau[-1], refine * (len(tau) - 1) + 1)
+    return np.unique(result.timemap.real_time(fine))
+
+
+def measured_kinematics(result: RetimeResult, refine: int = 10):
+    """Speed and per-axis acceleration from finite differences of positions.
+
+    Velocity: first differences (at interval midpoints). Acceleration: the
+    three-point formula for non-uniform steps.
+    """
+    t = fine_times(result, refine)
+    t = t[np.concatenate([[True], np.diff(t) > 1e-9])]
+    p = result.sample(t).position
+    dt = np.diff(t)
+    v = np.diff(p, axis=0) / dt[:, None]
+    a = 2 * (v[1:] - v[:-1]) / (dt[1:] + dt[:-1])[:, None]
+    return t, np.linalg.norm(v, axis=1), a
