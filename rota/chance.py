@@ -19,8 +19,14 @@ the ball, so the linearised probability is an upper bound of the true one:
 the constraint is conservative.
 
 Velocity relation (Eq. 15): the standard deviation along axis ``k`` is
-``s_k = max(floor, m |v_k| + b)`` with ``|v_k|`` the speed along that axis
-(:class:`UncertaintyModel`). ``Sigma_p = diag(s_x^2, s_y^2, s_z^2)``.
+``s_k = max(floor, m |v| + b)`` with ``|v|`` the speed (:class:`UncertaintyModel`,
+the default), or, with ``per_axis=True``, the paper's literal reading
+``s_k = max(floor, m |v_k| + b)`` with ``|v_k|`` the speed along axis ``k``.
+``Sigma_p = diag(s_x^2, s_y^2, s_z^2)``. The per-axis reading depends on the
+coordinate frame: a path flying along x past an obstacle abeam in y gets no
+lateral uncertainty at all, while the same path rotated by 45 degrees does.
+Visual-inertial drift grows with speed in every direction, so the default uses
+the speed on every axis, which is frame-invariant and never less cautious.
 
 Speed limit
 -----------
@@ -100,25 +106,33 @@ def _rows(value: ArrayLike, name: str, n: int | None = None, allow_nan: bool = F
 class UncertaintyModel:
     """Velocity -> position standard deviation (paper Eq. 15).
 
-    ``s_k = max(floor, m * |v_k| + b)`` per axis ``k``. Paper values ``m = 0.2``,
-    ``b = -0.1`` (no uncertainty below 0.5 m/s). ``m`` must be ``>= 0`` (more
-    speed never means less uncertainty) and ``floor >= 0`` keeps the std
-    non-negative. A separate object so that learned ``m``, ``b`` can replace it.
+    ``s_k = max(floor, m * |v| + b)`` on every axis ``k`` (``|v|`` the speed), or
+    ``max(floor, m * |v_k| + b)`` with ``per_axis`` (the paper's literal
+    reading; frame-dependent, see the module docstring). Paper values
+    ``m = 0.2``, ``b = -0.1`` (no uncertainty below 0.5 m/s). ``m`` must be
+    ``>= 0`` (more speed never means less uncertainty) and ``floor >= 0`` keeps
+    the std non-negative. A separate object so that learned ``m``, ``b`` can
+    replace it (the flight service's estimator does).
     """
 
     m: float = 0.2
     b: float = -0.1
     floor: float = 0.0
+    per_axis: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "m", _number(self.m, "m", lo=0.0))
         object.__setattr__(self, "b", _number(self.b, "b"))
         object.__setattr__(self, "floor", _number(self.floor, "floor", lo=0.0))
+        if not isinstance(self.per_axis, bool):
+            raise InputError("per_axis", f"must be true or false, got {self.per_axis!r}")
 
     def std(self, velocity: ArrayLike) -> FloatArray:
         """Per-axis position std ``(n, 3)`` for velocities ``(n, 3)`` (Eq. 15)."""
         vel = _rows(velocity, "velocity")
-        return np.maximum(self.floor, self.m * np.abs(vel) + self.b)
+        speed = np.abs(vel) if self.per_axis else np.broadcast_to(
+            np.linalg.norm(vel, axis=1, keepdims=True), vel.shape)
+        return np.maximum(self.floor, self.m * speed + self.b)
 
 
 @dataclass(frozen=True)
@@ -306,20 +320,23 @@ def speed_limits(
         r2 = np.where(margin > 0.0, (margin / z) ** 2 if z > 0 else np.inf, -np.inf)
     rem = r2 - obs_var  # budget for sum_k w_k s_k(v)^2
 
+    # Work in x = m * v (so tiny or zero m cannot under/overflow the quadratic):
+    # s_k = max(fl, |u_k| x + b); then v = x / m.
     m, b, fl = model.m, model.b, model.floor
-    g = m * np.abs(u)  # s_k(v) = max(fl, g_k v + b)
+    # Speed along each axis per unit speed: |u_k| (per axis) or 1 (speed model).
+    g = np.abs(u) if model.per_axis else np.where(un[:, None] > 0.0, 1.0, 0.0) * np.ones(3)
     s_inactive = max(fl, b)
 
-    def f(v: FloatArray) -> FloatArray:
-        s = np.maximum(fl, g * v[:, None] + b)
+    def f(x: FloatArray) -> FloatArray:
+        s = np.maximum(fl, g * x[:, None] + b)
         return np.einsum("ij,ij->i", w, s * s)
 
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         bp = np.where(g > 0.0, np.maximum(0.0, (fl - b) / g), np.inf)
     edges = np.concatenate([np.zeros((n, 1)), np.sort(bp, axis=1), np.full((n, 1), np.inf)], 1)
 
     best = np.full(n, -np.inf)
-    for j in range(4):
+    for j in range(4):  # the (at most) four quadratic pieces, all samples at once
         lo, hi = edges[:, j], edges[:, j + 1]
         live = np.isfinite(lo) & (hi > lo) if j > 0 else np.ones(n, bool)
         active = (bp <= lo[:, None]) & (g > 0.0)
@@ -332,18 +349,20 @@ def speed_limits(
         f_hi = np.where(hi_fin, f(np.where(hi_fin, hi, 0.0)), np.inf)
         ok_lo = live & (f_lo <= rem)
         whole = ok_lo & hi_fin & (f_hi <= rem)
-        # largest root of qa v^2 + qb v + (qc - rem) = 0 (qa > 0), stable form
+        # largest root of qa x^2 + qb x + (qc - rem) = 0 (qa > 0), cancellation-free form
         c0 = qc - rem
-        with np.errstate(invalid="ignore", divide="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             sq = np.sqrt(np.maximum(qb * qb - 4.0 * qa * c0, 0.0))
             root = np.where(qb >= 0.0, -2.0 * c0 / (qb + sq), (-qb + sq) / (2.0 * qa))
         root = np.where(qa > 0.0, root, np.inf)  # constant piece: unbounded
-        root = np.clip(np.nan_to_num(root, nan=-np.inf), lo, hi)
+        root = np.clip(np.nan_to_num(root, nan=-np.inf, posinf=np.inf), lo, hi)
         cand = np.where(whole, hi, np.where(ok_lo, root, -np.inf))
         best = np.maximum(best, cand)
 
     infeasible = has & ~(best >= 0.0)
-    unclamped = np.where(has, np.where(infeasible, np.nan, best), np.inf)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        v_star = best / m if m > 0.0 else np.full(n, np.inf)
+    unclamped = np.where(has, np.where(infeasible, np.nan, v_star), np.inf)
     clamped = np.clip(np.nan_to_num(unclamped, nan=0.0), params.v_floor, params.v_max)
     limit = np.where(has, np.where(infeasible, params.v_floor, clamped), params.v_max)
     return SpeedLimits(limit, unclamped, infeasible, params.v_floor)

@@ -104,6 +104,45 @@ def _vector3(value: ArrayLike, field: str) -> FloatArray:
     return arr
 
 
+def _sorted_unique(keys: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Sorted unique values (sort + neighbour compare; much faster than np.unique here)."""
+    k = np.sort(keys)
+    if k.size == 0:
+        return k
+    return k[np.concatenate(([True], k[1:] != k[:-1]))]
+
+
+def _key_layout(
+    lo: NDArray[np.int64], hi: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+    """Row-major multipliers and span for int64 keys of indices in ``[lo, hi]``."""
+    span = (hi - lo + 1).astype(np.int64)
+    if float(np.prod(span.astype(float))) >= 2.0**62:
+        return None
+    return np.array([span[1] * span[2], span[2], 1], dtype=np.int64), span
+
+
+def _unique_rows(idx: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Unique integer (n, 3) rows, sorted lexicographically (x, then y, then z)."""
+    if idx.shape[0] == 0:
+        return idx.reshape(0, 3)
+    lo = idx.min(axis=0)
+    layout = _key_layout(lo, idx.max(axis=0))
+    if layout is None:  # astronomically large extent: generic (slower) path
+        return np.unique(idx, axis=0)
+    mult, span = layout
+    keys = _sorted_unique((idx - lo) @ mult)
+    return _decode(keys, mult, span, lo)
+
+
+def _decode(
+    keys: NDArray[np.int64], mult: NDArray[np.int64], span: NDArray[np.int64],
+    lo: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    out = np.stack([keys // mult[0], (keys // mult[1]) % span[1], keys % span[2]], axis=1)
+    return out + lo
+
+
 def _readonly(arr: np.ndarray) -> np.ndarray:
     arr = np.ascontiguousarray(arr)
     arr.setflags(write=False)
@@ -140,7 +179,7 @@ class VoxelMap:
                 f"origin {origin.tolist()}); build maps from raw points with "
                 "VoxelMap.from_points",
             )
-        idx = np.unique(idx.astype(np.int64), axis=0) if idx.size else idx.astype(np.int64)
+        idx = _unique_rows(idx.astype(np.int64).reshape(-1, 3))
         object.__setattr__(self, "resolution", res)
         object.__setattr__(self, "origin", _readonly(origin))
         object.__setattr__(self, "occupied", _readonly(origin + (idx + 0.5) * res))
@@ -170,9 +209,8 @@ class VoxelMap:
         res = _positive_finite(resolution, "resolution")
         org = np.zeros(3) if origin is None else _vector3(origin, "origin")
         pts = _points_array(points, "points")
-        idx = np.floor((pts - org) / res).astype(np.int64)
-        idx = np.unique(idx, axis=0) if idx.size else idx.reshape(0, 3)
-        return cls(res, org + (idx + 0.5) * res, org)
+        idx = _unique_rows(np.floor((pts - org) / res).astype(np.int64).reshape(-1, 3))
+        return cls._from_indices(res, idx, org)
 
     @classmethod
     def from_file(
@@ -219,20 +257,29 @@ class VoxelMap:
         offs = np.stack(np.meshgrid(rng, rng, rng, indexing="ij"), axis=-1).reshape(-1, 3)
         offs = offs[(offs**2).sum(axis=1) * self.resolution**2 <= r * r * (1 + 1e-9)]
         lo = idx.min(axis=0) - k
-        span = idx.max(axis=0) + k - lo + 1
-        if float(np.prod(span.astype(float))) >= 2.0**62:
+        layout = _key_layout(lo, idx.max(axis=0) + k)
+        if layout is None:
             raise InputError("radius", "map extent too large for inflation index keys")
-        mult = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+        mult, span = layout
         base_keys = (idx - lo) @ mult
         off_keys = offs @ mult
         keys: list[np.ndarray] = []
         for s in range(0, len(base_keys), _CHUNK):
-            chunk = (base_keys[s : s + _CHUNK, None] + off_keys[None, :]).ravel()
-            keys.append(np.unique(chunk))
-        allk = np.unique(np.concatenate(keys))
-        out = np.stack([allk // mult[0], (allk // mult[1]) % span[1], allk % span[2]], axis=1)
-        out = out + lo
-        return VoxelMap(self.resolution, self.origin + (out + 0.5) * self.resolution, self.origin)
+            keys.append(_sorted_unique((base_keys[s : s + _CHUNK, None] + off_keys).ravel()))
+        out = _decode(_sorted_unique(np.concatenate(keys)), mult, span, lo)
+        return VoxelMap._from_indices(self.resolution, out, self.origin)
+
+    @classmethod
+    def _from_indices(
+        cls, resolution: float, idx: NDArray[np.int64], origin: FloatArray
+    ) -> VoxelMap:
+        """Internal: build from unique, sorted, valid indices without re-validating."""
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "resolution", float(resolution))
+        object.__setattr__(obj, "origin", _readonly(np.array(origin, dtype=float)))
+        object.__setattr__(obj, "occupied", _readonly(origin + (idx + 0.5) * resolution))
+        object.__setattr__(obj, "_indices", _readonly(idx.reshape(-1, 3)))
+        return obj
 
     def nearest(
         self, points: ArrayLike, bbox_margin: float = DEFAULT_BBOX_MARGIN
