@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rota.errors import InputError
+from rota.robust import Safety
 from rota.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -99,6 +100,10 @@ class RetimeInput:
         start_acceleration: acceleration at the start, or None to leave it free.
             Only its component that the path can produce is imposed.
         end_velocity: velocity at the end; zero (rest) by default.
+        safety: the map, uncertainty model and chance-constraint parameters
+            (:class:`rota.robust.Safety`); with them the re-time is robust
+            (braking zones, Sec. III-B/C). None: kinematic limits only.
+        solver: Clarabel settings.
     """
 
     trajectory: Trajectory
@@ -109,6 +114,7 @@ class RetimeInput:
     start_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
     start_acceleration: FloatArray | None = None
     end_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    safety: Safety | None = None
     solver: SolverSettings = field(default_factory=SolverSettings)
 
     def __post_init__(self) -> None:
@@ -128,6 +134,8 @@ class RetimeInput:
         object.__setattr__(self, "dtau", dtau)
         object.__setattr__(self, "start_velocity", _vector3(self.start_velocity, "start_velocity"))
         object.__setattr__(self, "end_velocity", _vector3(self.end_velocity, "end_velocity"))
+        if self.safety is not None and not isinstance(self.safety, Safety):
+            raise InputError("safety", f"must be a rota Safety, got {type(self.safety).__name__}")
         if self.start_acceleration is not None:
             object.__setattr__(
                 self, "start_acceleration", _vector3(self.start_acceleration, "start_acceleration")

@@ -17,6 +17,7 @@ FloatArray = NDArray[np.float64]
 
 OPTIMAL = "optimal"
 FALLBACK = "fallback"
+REJECTED = "rejected"
 
 
 @dataclass(frozen=True)
@@ -35,11 +36,16 @@ class RetimeResult:
     """Outcome of a re-time.
 
     Attributes:
-        status: ``"optimal"`` (the SOCP was solved and its solution checked) or
+        status: ``"optimal"`` (the SOCP was solved and its solution checked),
             ``"fallback"`` (it could not be: ``message`` says why in words, and the
             time mapping is the authors' fallback, the input uniformly slowed down
-            until it meets the limits).
+            until it meets the limits), or ``"rejected"`` (the path itself is unsafe:
+            it passes through an obstacle of the map; do not fly it - the time
+            mapping is the fallback, for inspection only).
         message: human-readable explanation; empty when optimal.
+        warnings: things the user should know about an otherwise usable result
+            (for example: the path leaves the map; the start is too fast for the
+            first braking zone and the vehicle brakes as hard as allowed).
         timemap: the time mapping tau = h(t) on the grid.
         trajectory: the input path.
         solver: what Clarabel reported (None when it was not called).
@@ -54,6 +60,7 @@ class RetimeResult:
     solver: SolverStats | None
     speed_limits: FloatArray
     extras: dict[str, Any]
+    warnings: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:

@@ -8,7 +8,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rota.problem import RetimeInput, make_grid
-from rota.result import FALLBACK, OPTIMAL, RetimeResult
+from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
+from rota.robust import assess
 from rota.socp import STILL, Boundary, PathSamples, assemble, sample_path
 from rota.solver import SolverStats, solve
 from rota.timemap import TimeMap
@@ -24,6 +25,8 @@ CHECK_TOL = 1e-3
 REFINE_TOL = 2e-4
 #: Solves at most (1 + rounds of constraint generation).
 MAX_ROUNDS = 4
+#: Share of the smallest acceleration limit used to brake a start that is too fast.
+BRAKE_SHARE = 0.5
 
 
 class Infeasible(Exception):
@@ -31,20 +34,44 @@ class Infeasible(Exception):
 
 
 def retime(inp: RetimeInput) -> RetimeResult:
-    """Re-time ``inp.trajectory`` optimally (paper Eq. 11 as the SOCP of Sec. III-D)."""
+    """Re-time ``inp.trajectory`` optimally (paper Eq. 11 as the SOCP of Sec. III-D).
+
+    With ``inp.safety`` the speed limit of every grid node also includes the
+    chance-constraint limit in braking zones (Sec. III-B/C).
+    """
     tau = make_grid(inp.trajectory, inp.dtau)
     _, d1, d2 = inp.trajectory.evaluate(tau)
     vlim = np.full(len(tau), inp.limits.v_max)
     if inp.speed_limits is not None:
         vlim = np.minimum(vlim, inp.speed_limits)
     speed = np.linalg.norm(d1, axis=1)
+    extras: dict = {}
+    warnings: list[str] = []
 
-    def fallback(reason: str, stats: SolverStats | None = None) -> RetimeResult:
-        return RetimeResult(FALLBACK, reason, uniform_fallback(inp.trajectory, tau, vlim,
-                            inp.limits.a_max_vec), inp.trajectory, stats, vlim, {})
+    def fallback(reason: str, stats: SolverStats | None = None,
+                 status: str = FALLBACK) -> RetimeResult:
+        timemap = uniform_fallback(inp.trajectory, tau, vlim, inp.limits.a_max_vec)
+        return RetimeResult(status, reason, timemap, inp.trajectory, stats, vlim, extras,
+                            tuple(warnings))
 
+    if inp.safety is not None:
+        seen = assess(inp.trajectory, tau, inp.safety)
+        vlim = np.minimum(vlim, seen.speed_limits)
+        extras.update(intervals=seen.zones.intervals, braking_mask=seen.zones.mask,
+                      obstacle_distance=seen.zones.distance)
+        if seen.outside.any():
+            i = int(np.argmax(seen.outside))
+            warnings.append(f"the path leaves the map at tau={tau[i]:.2f} s; speed limited to "
+                            f"{float(vlim[seen.outside].max()):.2f} m/s where the map knows "
+                            f"nothing ({int(seen.outside.sum())} grid nodes)")
+        if seen.collision.any():
+            return fallback(seen.describe_collision(tau), status=REJECTED)
     if speed.max() <= STILL:
         return fallback("degenerate trajectory: the path does not move (its length is 0)")
+    v0 = float(np.linalg.norm(inp.start_velocity))
+    if v0 > vlim[0] * (1 + 1e-9):
+        vlim, note = _brake_from_start(inp, tau, vlim, v0)
+        warnings.append(note)
     try:
         boundary = _boundary(inp, d1[0], d2[0], d1[-1], vlim[0], vlim[-1])
     except Infeasible as exc:
@@ -65,14 +92,34 @@ def retime(inp: RetimeInput) -> RetimeResult:
         if not bad.any() or rounds == MAX_ROUNDS:
             break
         path = path.activate(np.unique(path.pt_interval[bad]))
+    extras["solve_rounds"] = rounds
     problem = check_solution(path, beta, boundary)
     timemap = TimeMap(tau, beta)
     if problem is None and not np.isfinite(timemap.duration):
         problem = "the optimal time mapping stops on the way (infinite duration)"
     if problem is not None:
         return fallback(f"solver solution rejected: {problem}", stats)
-    return RetimeResult(OPTIMAL, "", timemap, inp.trajectory, stats, vlim,
-                        {"solve_rounds": rounds})
+    return RetimeResult(OPTIMAL, "", timemap, inp.trajectory, stats, vlim, extras,
+                        tuple(warnings))
+
+
+def _brake_from_start(inp: RetimeInput, tau: FloatArray, vlim: FloatArray,
+                      v0: float) -> tuple[FloatArray, str]:
+    """The vehicle is already faster than the limit at the start (for example a
+    replan puts it just before a braking zone): raise the limits near the start
+    to a braking profile at ``BRAKE_SHARE`` of the smallest acceleration limit,
+    ``v(s) = sqrt(v0^2 - 2 a s)`` over the arc length ``s``, so the re-time
+    brakes as hard as allowed instead of failing. Returns the limits and a note."""
+    p = inp.trajectory.position(tau)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    a_brake = BRAKE_SHARE * float(np.min(inp.limits.a_max_vec))
+    brake = np.sqrt(np.maximum(v0**2 - 2.0 * a_brake * s, 0.0))
+    raised = brake > vlim
+    last = int(np.flatnonzero(raised)[-1])
+    note = (f"start speed {v0:.2f} m/s exceeds the speed limit {vlim[0]:.2f} m/s at the start; "
+            f"braking at {a_brake:.2f} m/s^2, the limits are exceeded for the first "
+            f"{s[last]:.2f} m")
+    return np.maximum(vlim, brake), note
 
 
 def _boundary(inp: RetimeInput, d1_start: FloatArray, d2_start: FloatArray,

@@ -90,13 +90,19 @@ class PathSamples:
         more = self.active | np.isin(self.pt_interval, intervals)
         return replace(self, active=more)
 
+    def vlim2_between(self, i: NDArray[np.int64], f: FloatArray) -> FloatArray:
+        """Squared speed limit at fraction ``f`` of interval ``i``: interpolated
+        linearly between the nodes' squared limits (exact for a braking profile
+        ``v^2 = v0^2 - 2 a s`` on a path of constant ``|sigma'|``)."""
+        return (1 - f) * self.vlim[i] ** 2 + f * self.vlim[i + 1] ** 2
+
     def ratios(self, beta: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Speed and acceleration of ``beta`` at every candidate, as fractions of
         their limits (speed: squared ratio; acceleration: worst axis)."""
         i, f = self.pt_interval, self.pt_fraction
         b = (1 - f) * beta[i] + f * beta[i + 1]
         alpha = np.diff(beta) / (2 * self.h)
-        lim2 = np.minimum(self.vlim[i], self.vlim[i + 1]) ** 2
+        lim2 = self.vlim2_between(i, f)
         v2 = np.einsum("ij,ij->i", self.pt_d1, self.pt_d1) * b / lim2
         acc = self.pt_d1 * alpha[i, None] + self.pt_d2 * b[:, None]
         return v2, np.max(np.abs(acc) / self.a_max, axis=1)
@@ -236,7 +242,7 @@ def assemble(path: PathSamples, smoothness: float, boundary: Boundary) -> Socp:
     ci, f = path.pt_interval[act], path.pt_fraction[act]
     pd1, pd2 = path.pt_d1[act], path.pt_d2[act]
     inner = (f > 0) & (f < 1)
-    lim2 = np.minimum(path.vlim[ci[inner]], path.vlim[ci[inner] + 1]) ** 2
+    lim2 = path.vlim2_between(ci[inner], f[inner])
     w = np.einsum("ij,ij->i", pd1[inner], pd1[inner]) / lim2
     m = int(inner.sum())
     r = np.arange(m)

@@ -1,0 +1,113 @@
+"""The robust part of ROTA: map -> braking zones -> chance-constrained speed limits
+(paper Sec. III-B, III-C), assessed on the re-timing grid.
+
+This is glue over :mod:`rota.voxelmap`, :mod:`rota.braking` and :mod:`rota.chance`;
+its product is one speed limit per grid node, which the SOCP takes through the
+per-node speed-limit hook (Eq. 23), plus what the result reports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rota.braking import BrakingParams, BrakingZones, find_braking_zones
+from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, speed_limits
+from rota.errors import InputError
+from rota.trajectory import Trajectory
+from rota.voxelmap import VoxelMap
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class Safety:
+    """What the robust re-time needs beyond the kinematic limits.
+
+    Attributes:
+        map: occupied voxels, in the trajectory's frame.
+        uncertainty: velocity -> position std model (Eq. 15); the flight service
+            replaces it with the in-flight estimate.
+        chance: probability bound, robot ellipsoid, obstacle std (Eqs. 10-14).
+        braking: braking-zone threshold and refinement (Alg. 1).
+        bounds: optional ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` of the space
+            the map covers. Where the path leaves it nothing is known about
+            obstacles, so the speed there is limited to ``unknown_speed``.
+            None: the map is taken to cover everything.
+        unknown_speed: speed limit outside ``bounds`` (m/s); default
+            ``chance.v_floor``.
+    """
+
+    map: VoxelMap
+    uncertainty: UncertaintyModel = field(default_factory=UncertaintyModel)
+    chance: ChanceParams = field(default_factory=ChanceParams)
+    braking: BrakingParams = field(default_factory=BrakingParams)
+    bounds: FloatArray | None = None
+    unknown_speed: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.map, VoxelMap):
+            raise InputError("map", f"must be a rota VoxelMap, got {type(self.map).__name__}")
+        if self.bounds is not None:
+            b = np.asarray(self.bounds, dtype=float)
+            if b.shape != (2, 3) or not np.all(np.isfinite(b)) or np.any(b[1] <= b[0]):
+                raise InputError("bounds", "must be ((xmin, ymin, zmin), (xmax, ymax, zmax)) "
+                                 "with min < max, finite")
+            object.__setattr__(self, "bounds", b)
+        if self.unknown_speed is not None and not (np.isfinite(self.unknown_speed)
+                                                   and self.unknown_speed > 0):
+            raise InputError("unknown_speed", f"must be positive, got {self.unknown_speed!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class Assessment:
+    """The map seen from the path, on the grid.
+
+    Attributes:
+        speed_limits: ``(N+1,)`` per-node limit (m/s); ``inf`` where none applies.
+        zones: braking zones (raw mask drives the limits, refined intervals report).
+        chance: the chance-constraint limits at every node (applied on the mask).
+        collision: ``(N+1,)`` nodes whose nominal position is inside the robot's
+            safety ellipsoid of an obstacle, or so close that even at rest the
+            probability bound cannot hold: the path itself is unsafe there.
+        outside: ``(N+1,)`` nodes outside the map's ``bounds``.
+        position: ``(N+1, 3)`` path positions at the nodes.
+    """
+
+    speed_limits: FloatArray
+    zones: BrakingZones
+    chance: SpeedLimits
+    collision: BoolArray
+    outside: BoolArray
+    position: FloatArray
+
+    def describe_collision(self, tau: FloatArray) -> str:
+        i = int(np.argmax(self.collision))
+        p = np.round(self.position[i], 2).tolist()
+        o = np.round(self.zones.nearest[i], 2).tolist()
+        return (f"the path is unsafe: at tau={tau[i]:.2f} s, position {p} is "
+                f"{self.zones.distance[i]:.2f} m from the obstacle at {o}, inside the robot's "
+                f"safety ellipsoid or too close to meet the collision-probability bound "
+                f"even at rest ({int(self.collision.sum())} grid nodes)")
+
+
+def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety) -> Assessment:
+    """Braking zones (Alg. 1) and chance-constraint speed limits (Sec. III-C) on ``tau``."""
+    p, d1, _ = trajectory.evaluate(tau)
+    margin = max(2.0, safety.braking.d_th)
+    distance, obstacle = safety.map.nearest(p, bbox_margin=margin)
+    zones = find_braking_zones(tau, p, d1, distance, obstacle, safety.braking)
+    chance = speed_limits(p, d1, obstacle, safety.uncertainty, safety.chance)
+    limits = np.where(zones.speed_limit_mask, chance.limit, np.inf)
+    near = distance <= max(safety.braking.d_th, max(safety.chance.semi_axes))
+    collision = chance.infeasible & near
+    if safety.bounds is None:
+        outside = np.zeros(len(tau), dtype=bool)
+    else:
+        outside = np.any((p < safety.bounds[0]) | (p > safety.bounds[1]), axis=1)
+        unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
+        limits = np.where(outside, np.minimum(limits, unknown), limits)
+    return Assessment(limits, zones, chance, collision, outside, p)
