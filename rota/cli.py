@@ -8,8 +8,9 @@ Commands (``rota COMMAND --help`` for each):
 * ``rota demo [--out DIR]``: the main job (see README).
 
 Exit status: 0 when the optimal re-time was found, 3 when the result is the
-fallback (the result is still written, its ``message`` says why), 2 for bad
-input (the error names the offending field).
+fallback (the result is still written, its ``message`` says why), 4 when the
+path is rejected as unsafe (it passes through an obstacle of ``--map``), 2 for
+bad input (the error names the offending field).
 """
 
 from __future__ import annotations
@@ -22,13 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
+from rota.braking import BrakingParams
+from rota.chance import ChanceParams, UncertaintyModel
 from rota.errors import InputError
 from rota.problem import Limits, RetimeInput
+from rota.result import REJECTED
 from rota.retime import retime
+from rota.robust import Safety
 from rota.schema import dump, load, result_to_dict, trajectory_from_dict
 from rota.trajectory import Trajectory
+from rota.voxelmap import VoxelMap
 
-EXIT_OK, EXIT_INPUT, EXIT_FALLBACK = 0, 2, 3
+EXIT_OK, EXIT_INPUT, EXIT_FALLBACK, EXIT_REJECTED = 0, 2, 3, 4
 
 
 def _floats(text: str) -> list[float]:
@@ -60,11 +66,63 @@ def add_retime_options(p: argparse.ArgumentParser) -> None:
                    help="vehicle velocity at the start, x,y,z m/s (default rest)")
 
 
+def add_safety_options(p: argparse.ArgumentParser) -> None:
+    """Map and uncertainty options (paper Sec. III-B/C); without --map none apply."""
+    g = p.add_argument_group("robustness (with --map)")
+    g.add_argument("--map", help="occupancy map: rota/map JSON, or a point cloud "
+                   "(.ply, .pcd, .npy, .csv) voxelised at --map-resolution")
+    g.add_argument("--map-resolution", type=float, default=0.1,
+                   help="voxel size for point-cloud maps, m (default 0.1)")
+    g.add_argument("--inflate", type=float, default=0.0,
+                   help="inflate the map by this radius, m (default 0: the robot "
+                   "ellipsoid --semi-axes accounts for the robot's size)")
+    g.add_argument("--m", type=float, default=0.2,
+                   help="uncertainty slope: std = m * speed + b (default 0.2)")
+    g.add_argument("--b", type=float, default=-0.1, help="uncertainty offset, m (default -0.1)")
+    g.add_argument("--per-axis", action="store_true",
+                   help="use the per-axis velocity in the uncertainty model (paper's "
+                   "literal Eq. 15; frame-dependent) instead of the speed")
+    g.add_argument("--delta", type=float, default=1e-4,
+                   help="collision probability bound per sample (default 1e-4 = 0.01 %%)")
+    g.add_argument("--semi-axes", type=_floats, default=[0.3],
+                   help="robot safety ellipsoid semi-axes, m: one value or a,b,c (default 0.3)")
+    g.add_argument("--obstacle-std", type=float, default=0.03,
+                   help="obstacle position std, m (default 0.03)")
+    g.add_argument("--v-floor", type=float, default=0.5,
+                   help="lowest speed limit the chance constraint imposes, m/s (default 0.5)")
+    g.add_argument("--d-th", type=float, default=1.0,
+                   help="braking-zone distance threshold, m (default 1.0)")
+
+
+def load_map(path: str, resolution: float) -> VoxelMap:
+    if path.lower().endswith(".json"):
+        return VoxelMap.from_dict(load(path))
+    return VoxelMap.from_file(path, resolution)
+
+
+def build_safety(args: argparse.Namespace) -> Safety | None:
+    if not args.map:
+        return None
+    vmap = load_map(args.map, args.map_resolution)
+    if args.inflate > 0:
+        vmap = vmap.inflated(args.inflate)
+    axes = args.semi_axes * 3 if len(args.semi_axes) == 1 else args.semi_axes
+    return Safety(
+        map=vmap,
+        uncertainty=UncertaintyModel(m=args.m, b=args.b, per_axis=args.per_axis),
+        chance=ChanceParams(delta=args.delta, semi_axes=tuple(axes),
+                            obstacle_std=(args.obstacle_std,) * 3,
+                            v_floor=min(args.v_floor, args.v_max), v_max=args.v_max),
+        braking=BrakingParams(d_th=args.d_th),
+    )
+
+
 def build_input(args: argparse.Namespace, trajectory: Trajectory) -> RetimeInput:
     a_max = args.a_max[0] if len(args.a_max) == 1 else tuple(args.a_max)
     return RetimeInput(trajectory=trajectory, limits=Limits(args.v_max, a_max),
                        smoothness=args.smoothness, dtau=args.dtau,
-                       start_velocity=np.asarray(args.start_velocity))
+                       start_velocity=np.asarray(args.start_velocity),
+                       safety=build_safety(args))
 
 
 def cmd_retime(args: argparse.Namespace) -> int:
@@ -74,10 +132,18 @@ def cmd_retime(args: argparse.Namespace) -> int:
     dump(result_to_dict(result, msg, rate_hz=args.rate), args.output)
     print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
           f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""))
+    for w in result.warnings:
+        print(f"warning: {w}")
+    zones = result.extras.get("intervals", ())
+    if inp.safety is not None:
+        print(f"braking zones (trajectory time): {[tuple(round(x, 2) for x in z) for z in zones]}")
     if args.plot:
         from rota.plot import plot_result
 
-        print(f"plot: {plot_result(result, inp.limits, args.plot, title=msg.id)}")
+        obstacles = None if inp.safety is None else inp.safety.map.occupied
+        print(f"plot: {plot_result(result, inp.limits, args.plot, obstacles, title=msg.id)}")
+    if result.status == REJECTED:
+        return EXIT_REJECTED
     return EXIT_OK if result.ok else EXIT_FALLBACK
 
 
@@ -124,6 +190,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=None,
                    help="also write setpoints sampled at this rate (Hz)")
     add_retime_options(p)
+    add_safety_options(p)
     p.set_defaults(func=cmd_retime)
 
     p = sub.add_parser("example", help="write the bundled example trajectory")

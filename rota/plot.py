@@ -71,7 +71,8 @@ def plot_result(result: RetimeResult, limits: Limits, path: str | Path,
     if mask is not None and np.any(mask):
         bp = traj.position(result.tau[mask])
         a_top.scatter(bp[:, 0], bp[:, 1], s=8, color="C3", zorder=3, label="braking points")
-    a_top.set(xlabel="x (m)", ylabel="y (m)", title="Top view", aspect="equal")
+    a_top.set(xlabel="x (m)", ylabel="y (m)", title="Top view")
+    a_top.set_aspect("equal", adjustable="datalim")
     a_top.legend(fontsize=8)
     a_top.grid(alpha=0.3)
     if title:

@@ -36,7 +36,8 @@ class Safety:
         bounds: optional ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` of the space
             the map covers. Where the path leaves it nothing is known about
             obstacles, so the speed there is limited to ``unknown_speed``.
-            None: the map is taken to cover everything.
+            None: the map's own ``bounds``, and if it has none the map is taken
+            to cover everything.
         unknown_speed: speed limit outside ``bounds`` (m/s); default
             ``chance.v_floor``.
     """
@@ -104,10 +105,11 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety) -> Assessmen
     limits = np.where(zones.speed_limit_mask, chance.limit, np.inf)
     near = distance <= max(safety.braking.d_th, max(safety.chance.semi_axes))
     collision = chance.infeasible & near
-    if safety.bounds is None:
+    bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
+    if bounds is None:
         outside = np.zeros(len(tau), dtype=bool)
     else:
-        outside = np.any((p < safety.bounds[0]) | (p > safety.bounds[1]), axis=1)
+        outside = np.any((p < bounds[0]) | (p > bounds[1]), axis=1)
         unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
         limits = np.where(outside, np.minimum(limits, unknown), limits)
     return Assessment(limits, zones, chance, collision, outside, p)

@@ -149,6 +149,7 @@ def result_to_dict(result: RetimeResult, msg: TrajectoryMessage,
         "frame": msg.frame,
         "status": result.status,
         "message": result.message,
+        "warnings": list(result.warnings),
         "duration": result.duration,
         "input_duration": result.trajectory.duration,
         "tau": result.tau.tolist(),
@@ -197,7 +198,8 @@ def result_from_dict(d: object) -> tuple[RetimeResult, TrajectoryMessage]:
                                                else float(s["objective"]))
     extras = {"intervals": [tuple(iv) for iv in d.get("braking_zones", [])]}
     result = RetimeResult(str(_require(d, "status")), str(d.get("message", "")),
-                          TimeMap(tau, beta), msg.trajectory, stats, limits, extras)
+                          TimeMap(tau, beta), msg.trajectory, stats, limits, extras,
+                          tuple(str(w) for w in d.get("warnings", [])))
     return result, msg
 
 

@@ -158,11 +158,15 @@ class VoxelMap:
         occupied: ``(n, 3)`` voxel centres; ``n`` may be 0 (an empty map). Snapped
             to the grid and de-duplicated on construction (sorted by index).
         origin: ``(3,)`` a voxel corner of the grid (default: zeros).
+        bounds: optional ``(2, 3)`` ``[min corner, max corner]`` of the space the
+            map covers (a local map around the vehicle). Outside it nothing is
+            known; :mod:`rota.robust` limits the speed there. None: unbounded.
     """
 
     resolution: float
     occupied: FloatArray
     origin: FloatArray = dc_field(default_factory=lambda: np.zeros(3))
+    bounds: FloatArray | None = None
 
     def __post_init__(self) -> None:
         res = _positive_finite(self.resolution, "resolution")
@@ -184,6 +188,11 @@ class VoxelMap:
         object.__setattr__(self, "origin", _readonly(origin))
         object.__setattr__(self, "occupied", _readonly(origin + (idx + 0.5) * res))
         object.__setattr__(self, "_indices", _readonly(idx.reshape(-1, 3)))
+        if self.bounds is not None:
+            b = _json_numbers(np.asarray(self.bounds, dtype=float).tolist(), "bounds", (2, 3))
+            if np.any(b[1] <= b[0]):
+                raise InputError("bounds", "max corner must exceed min corner on every axis")
+            object.__setattr__(self, "bounds", _readonly(b))
 
     # ------------------------------------------------------------------ basics
     def __len__(self) -> int:
@@ -332,7 +341,7 @@ class VoxelMap:
             "resolution": self.resolution,
             "origin": self.origin.tolist(),
             "occupied": self.occupied.tolist(),
-        }
+        } | ({} if self.bounds is None else {"bounds": self.bounds.tolist()})
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> VoxelMap:
@@ -343,9 +352,11 @@ class VoxelMap:
         for key in required:
             if key not in d:
                 raise InputError(key, "missing")
-        extra = sorted(set(d) - set(required))
+        optional = ("bounds", "id", "stamp")
+        extra = sorted(set(d) - set(required) - set(optional))
         if extra:
-            raise InputError(str(extra[0]), f"unknown field (allowed: {', '.join(required)})")
+            raise InputError(str(extra[0]), "unknown field (allowed: "
+                             f"{', '.join(required + optional)})")
         if d["schema"] != MAP_SCHEMA:
             raise InputError("schema", f"must be {MAP_SCHEMA!r}, got {d['schema']!r}")
         if isinstance(d["version"], bool) or d["version"] != MAP_VERSION:
@@ -355,7 +366,8 @@ class VoxelMap:
         res = _positive_finite(d["resolution"], "resolution")
         origin = _json_numbers(d["origin"], "origin", (3,))
         occ = _json_numbers(d["occupied"], "occupied", None)
-        return cls(res, occ, origin)
+        bounds = None if d.get("bounds") is None else _json_numbers(d["bounds"], "bounds", (2, 3))
+        return cls(res, occ, origin, bounds)
 
 
 def _json_numbers(value: Any, field: str, shape: tuple[int, ...] | None) -> FloatArray:
@@ -379,7 +391,12 @@ def _json_numbers(value: Any, field: str, shape: tuple[int, ...] | None) -> Floa
                 raise InputError(_index_name(field, idx), "must be finite")
             return arr
     # slow path: find the offending item to name it
-    if shape is not None:
+    if shape is not None and len(shape) == 2:
+        if not isinstance(value, list | tuple) or len(value) != shape[0]:
+            raise InputError(field, f"must be a list of {shape[0]} [x, y, z] rows")
+        for i, row in enumerate(value):
+            _check_vector(row, f"{field}[{i}]", shape[1])
+    elif shape is not None:
         _check_vector(value, field, shape[0])
     else:
         if not isinstance(value, list):
