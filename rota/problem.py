@@ -73,12 +73,32 @@ class Limits:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Clarabel settings that matter for ROTA (see :mod:`rota.solver`)."""
+    """Clarabel settings that matter for ROTA (see :mod:`rota.solver`).
 
-    tol: float = 1e-7
+    The defaults are the measured fastest settings that still meet the
+    benchmark's accuracy check (objective within 0.1 % of a 1e-10 reference
+    solve, every check point within its limit; see ``docs/benchmarks.md``):
+
+    * ``tol``: Clarabel's gap and feasibility tolerances (1e-6: objective
+      error ~1e-7 relative, four orders below what the check allows);
+    * ``iterative_refinement``: Clarabel refines every KKT solve to 1e-13 by
+      default; ROTA's KKT systems are well conditioned after the row scaling of
+      :func:`rota.socp.assemble`, and refinement doubled the time per iteration;
+    * ``equilibrate``, ``presolve``: Clarabel's Ruiz scaling and presolve;
+    * ``reuse_symbolic``: keep the solver of the previous call and only update
+      its data (``DefaultSolver.update``) when the new problem has the same
+      sparsity (a replan on the same grid, or a repeated solve), skipping the
+      symbolic KKT work.
+    """
+
+    tol: float = 1e-6
     max_iter: int = 200
     time_limit: float = 5.0
     verbose: bool = False
+    iterative_refinement: bool = False
+    equilibrate: bool = True
+    presolve: bool = True
+    reuse_symbolic: bool = False
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from rota.trajectory import (
     PolynomialTrajectory,
     SampledTrajectory,
     Trajectory,
+    Window,
 )
 
 VERSION = 1
@@ -101,6 +102,11 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
         if isinstance(exc, InputError):
             raise
         raise InputError("(trajectory)", str(exc)) from None
+    if d.get("start") is not None:
+        start = d["start"]
+        if isinstance(start, bool) or not isinstance(start, int | float):
+            raise InputError("start", f"must be a number (trajectory time), got {start!r}")
+        traj = Window(base=traj, start=float(start))
     return TrajectoryMessage(traj, id=_optional_str(d, "id", ""), frame=frame,
                              stamp=None if stamp is None else float(stamp))
 
@@ -117,6 +123,11 @@ def trajectory_to_dict(msg: TrajectoryMessage) -> dict[str, Any]:
     traj = msg.trajectory
     out: dict[str, Any] = {"schema": TRAJECTORY, "version": VERSION, "id": msg.id,
                            "frame": msg.frame}
+    if isinstance(traj, Window):
+        if traj.end != traj.base.domain[1]:  # type: ignore[union-attr]
+            raise TypeError("only windows that run to the end of the trajectory serialise")
+        out["start"] = traj.start
+        traj = traj.base
     if msg.stamp is not None:
         out["stamp"] = msg.stamp
     if isinstance(traj, BSplineTrajectory):

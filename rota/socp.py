@@ -46,6 +46,13 @@ BETA_CAP_FACTOR = 1e4
 DENSE = 8
 #: Intervals over which |sigma'| changes by more than this ratio start fully checked.
 REFINE_RATIO = 1.2
+#: Start constraint generation with the interval midpoints constrained too. Off:
+#: the nodes (both ends of every interval) and breakpoints suffice almost
+#: everywhere, and a violated midpoint activates its interval (measured in
+#: docs/benchmarks.md: fewer rows beat the occasional extra round).
+INITIAL_MIDPOINTS = False
+#: Leave out rows that no beta within its bounds can violate (exact presolve).
+PRUNE_ROWS = True
 
 
 @dataclass(frozen=True)
@@ -55,8 +62,9 @@ class PathSamples:
     Beyond the nodes, the limits are imposed at *check points* inside the
     intervals. Candidates are the ``DENSE - 1`` interior points of a uniform
     subdivision of every interval, both of its ends (alpha jumps at nodes) and
-    the path's own breakpoints; ``active`` says which are constrained. The nodes,
-    midpoints and breakpoints always are, and every candidate of an interval over
+    the path's own breakpoints; ``active`` says which are constrained. The nodes
+    (both ends of every interval) and breakpoints always are (the midpoints too
+    with :data:`INITIAL_MIDPOINTS`), and every candidate of an interval over
     which the path's speed ``|sigma'|`` changes fast (near a stop, such as a
     clamped B-spline end). The re-timer activates more where a solution violates
     a limit at a candidate
@@ -109,7 +117,7 @@ class PathSamples:
 
 
 def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
-                a_max: FloatArray) -> PathSamples:
+                a_max: FloatArray, midpoints: bool | None = None) -> PathSamples:
     """Evaluate the path on the grid and at the candidate check points.
 
     ``beta_max`` is the speed bound ``v_i^2 / |sigma'_i|^2`` (Eq. 23); where the path
@@ -138,7 +146,11 @@ def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
     lo = np.minimum(speed[:-1], speed[1:])
     hi = np.maximum(speed[:-1], speed[1:])
     refine = np.flatnonzero(hi > REFINE_RATIO * np.maximum(lo, STILL))
-    active = (frac == 0) | (frac == 1) | (np.abs(frac - 0.5) < 1e-12) | np.isin(idx, refine)
+    if midpoints is None:
+        midpoints = INITIAL_MIDPOINTS
+    active = (frac == 0) | (frac == 1) | np.isin(idx, refine)
+    if midpoints:
+        active |= np.abs(frac - 0.5) < 1e-12
     active[2 * n + n * len(inner):] = True  # breakpoints
     moving = speed > STILL
     with np.errstate(divide="ignore"):
@@ -241,23 +253,37 @@ def assemble(path: PathSamples, smoothness: float, boundary: Boundary) -> Socp:
     act = path.active
     ci, f = path.pt_interval[act], path.pt_fraction[act]
     pd1, pd2 = path.pt_d1[act], path.pt_d2[act]
+    # With PRUNE_ROWS a row is left out when no beta in [0, beta_max] can break it
+    # (its largest value over that box is at most 1): an exact presolve that drops,
+    # e.g., every z row of a flat path and the speed rows away from the limit.
+    bmax = path.beta_max
     inner = (f > 0) & (f < 1)
-    lim2 = path.vlim2_between(ci[inner], f[inner])
+    ci_in, f_in = ci[inner], f[inner]
+    lim2 = path.vlim2_between(ci_in, f_in)
     w = np.einsum("ij,ij->i", pd1[inner], pd1[inner]) / lim2
-    m = int(inner.sum())
+    w_lo, w_hi = (1 - f_in) * w, f_in * w
+    if PRUNE_ROWS:
+        keep = w_lo * bmax[ci_in] + w_hi * bmax[ci_in + 1] > 1.0
+        ci_in, w_lo, w_hi = ci_in[keep], w_lo[keep], w_hi[keep]
+    m = len(ci_in)
     r = np.arange(m)
-    block(np.concatenate([r, r]), np.concatenate([ib[ci[inner]], ib[ci[inner] + 1]]),
-          np.concatenate([(1 - f[inner]) * w, f[inner] * w]), np.ones(m))
+    block(np.concatenate([r, r]), np.concatenate([ib[ci_in], ib[ci_in + 1]]),
+          np.concatenate([w_lo, w_hi]), np.ones(m))
     n_nonneg += m
     d1 = pd1 / path.a_max
     d2 = pd2 / path.a_max
-    c_lo = -d1 / (2 * h) + (1 - f)[:, None] * d2  # coefficient on beta_i
-    c_hi = d1 / (2 * h) + f[:, None] * d2  # coefficient on beta_{i+1}
-    r = np.arange(3 * len(ci))  # row per (check point, axis)
+    c_lo = (-d1 / (2 * h) + (1 - f)[:, None] * d2).ravel()  # coefficient on beta_i
+    c_hi = (d1 / (2 * h) + f[:, None] * d2).ravel()  # coefficient on beta_{i+1}
+    j_lo, j_hi = np.repeat(ib[ci], 3), np.repeat(ib[ci + 1], 3)  # row per (point, axis)
     for sign in (1.0, -1.0):
-        block(np.concatenate([r, r]),
-              np.concatenate([np.repeat(ib[ci], 3), np.repeat(ib[ci + 1], 3)]),
-              sign * np.concatenate([c_lo.ravel(), c_hi.ravel()]), np.ones(len(r)))
+        a_lo, a_hi, k_lo, k_hi = sign * c_lo, sign * c_hi, j_lo, j_hi
+        if PRUNE_ROWS:
+            keep = (np.maximum(a_lo, 0.0) * bmax[k_lo] + np.maximum(a_hi, 0.0) * bmax[k_hi]
+                    > 1.0)
+            a_lo, a_hi, k_lo, k_hi = a_lo[keep], a_hi[keep], k_lo[keep], k_hi[keep]
+        r = np.arange(len(a_lo))
+        block(np.concatenate([r, r]), np.concatenate([k_lo, k_hi]),
+              np.concatenate([a_lo, a_hi]), np.ones(len(r)))
         n_nonneg += len(r)
     cones.append(clarabel.NonnegativeConeT(n_nonneg))
 

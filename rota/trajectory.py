@@ -272,3 +272,42 @@ class SampledTrajectory(Trajectory):
     @property
     def domain(self) -> tuple[float, float]:
         return float(self.t[0]), float(self.t[-1])
+
+
+@dataclass(frozen=True)
+class Window(Trajectory):
+    """The part of ``base`` from trajectory time ``start`` (to ``end``, default its
+    end): how a replan continues from the point the vehicle has reached."""
+
+    base: Trajectory | None = None
+    start: float = 0.0
+    end: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, Trajectory):
+            raise InputError("base", "must be a trajectory")
+        b0, b1 = self.base.domain
+        end = b1 if self.end is None else float(self.end)
+        start = float(self.start)
+        if not (np.isfinite(start) and b0 <= start < end <= b1):
+            raise InputError("start", f"must lie in the trajectory's domain [{b0}, {b1}) and "
+                             f"before the end, got {self.start!r}")
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "end", end)
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return self.start, float(self.end)  # type: ignore[arg-type]
+
+    @property
+    def breakpoints(self) -> FloatArray:
+        x = self.base.breakpoints  # type: ignore[union-attr]
+        return x[(x > self.start) & (x < float(self.end))]  # type: ignore[arg-type]
+
+    def evaluate(self, tau: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
+        return self.base.evaluate(x)  # type: ignore[union-attr]
+
+    def position(self, tau: ArrayLike) -> FloatArray:
+        x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
+        return self.base.position(x)  # type: ignore[union-attr]

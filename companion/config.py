@@ -1,0 +1,258 @@
+"""Service configuration: frozen dataclasses loaded from TOML and validated at start.
+
+Every setting is documented in ``configs/companion.toml``; an error names the
+setting (``[limits] v_max: must be positive``). Unknown settings are errors too,
+so a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from rota.braking import BrakingParams
+from rota.chance import ChanceParams, UncertaintyModel
+from rota.errors import InputError
+from rota.problem import Limits
+
+
+class ConfigError(ValueError):
+    """A configuration setting is missing, unknown or out of range."""
+
+
+@dataclass(frozen=True)
+class ServiceSection:
+    vehicle_id: str = "drone1"  # Zenoh key expressions are <key_prefix>/<vehicle_id>/...
+    key_prefix: str = "rota"
+    log_level: str = "INFO"
+    state_dir: str = "/var/lib/rota-companion"  # persisted state (estimator)
+
+
+@dataclass(frozen=True)
+class MavlinkSection:
+    url: str = "udpin://127.0.0.1:14540"  # MAVSDK connection URL (PX4 offboard link)
+    connect_timeout_s: float = 30.0
+    health_timeout_s: float = 30.0
+    link_timeout_s: float = 1.5  # no telemetry for this long = link lost
+
+
+@dataclass(frozen=True)
+class ZenohSection:
+    config_file: str = ""  # a Zenoh JSON5 configuration; empty = the embedded default
+    mode: str = "peer"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    connect: tuple[str, ...] = ()
+    telemetry_rate_hz: float = 10.0
+    status_rate_hz: float = 2.0
+
+
+@dataclass(frozen=True)
+class StreamSection:
+    rate_hz: float = 50.0  # setpoint stream rate
+    prestream_s: float = 1.0  # setpoints streamed before requesting OFFBOARD (PX4 rule)
+    yaw: str = "path"  # "path": face along the path; "hold": keep the yaw at start
+    takeoff_altitude_m: float = 1.5
+    auto_start: bool = False  # arm, take off and start offboard on the first trajectory
+
+
+@dataclass(frozen=True)
+class LimitsSection:
+    v_max: float = 2.0  # speed limit, m/s
+    a_max: tuple[float, float, float] = (2.0, 2.0, 1.5)  # per axis (x, y, z), m/s^2
+    smoothness: float = 0.5  # lambda of the paper's Eq. 10
+    dtau: float = 0.05  # re-timing grid step, s of trajectory time
+    max_solve_s: float = 2.0  # a re-time slower than this is abandoned
+
+
+@dataclass(frozen=True)
+class SafetySection:
+    input_frame: str = "ENU"  # frame of trajectories that do not say (ENU or NED)
+    geofence_min: tuple[float, float, float] = (-50.0, -50.0, 0.0)  # ENU, m, from home
+    geofence_max: tuple[float, float, float] = (50.0, 50.0, 10.0)
+    max_message_age_s: float = 2.0  # older trajectories/maps are rejected (needs "stamp")
+    max_input_speed: float = 10.0  # reject trajectories planned faster than this, m/s
+    stitch_tolerance_m: float = 0.5  # max gap between vehicle and new trajectory start
+    planner_timeout_s: float = 0.0  # >0: hold when no trajectory for this long in flight
+    max_tracking_error_m: float = 1.5  # reported position this far from command -> hold
+    max_trajectory_points: int = 100000
+
+
+@dataclass(frozen=True)
+class UncertaintySection:
+    m: float = 0.2  # std = m * speed + b (paper Eq. 15 defaults)
+    b: float = -0.1
+    floor: float = 0.0
+    per_axis: bool = False
+    delta: float = 1e-4  # collision probability bound per sample (paper: 0.01 %)
+    semi_axes: tuple[float, float, float] = (0.3, 0.3, 0.3)  # robot ellipsoid, m
+    obstacle_std: float = 0.03
+    v_floor: float = 0.5
+    d_th: float = 1.0  # braking-zone distance threshold, m
+
+
+@dataclass(frozen=True)
+class Config:
+    service: ServiceSection = field(default_factory=ServiceSection)
+    mavlink: MavlinkSection = field(default_factory=MavlinkSection)
+    zenoh: ZenohSection = field(default_factory=ZenohSection)
+    stream: StreamSection = field(default_factory=StreamSection)
+    limits: LimitsSection = field(default_factory=LimitsSection)
+    safety: SafetySection = field(default_factory=SafetySection)
+    uncertainty: UncertaintySection = field(default_factory=UncertaintySection)
+
+    # ----------------------------------------------------------- derived objects
+    def rota_limits(self) -> Limits:
+        return Limits(self.limits.v_max, self.limits.a_max)
+
+    def uncertainty_model(self) -> UncertaintyModel:
+        u = self.uncertainty
+        return UncertaintyModel(m=u.m, b=u.b, floor=u.floor, per_axis=u.per_axis)
+
+    def chance_params(self) -> ChanceParams:
+        u = self.uncertainty
+        return ChanceParams(delta=u.delta, semi_axes=u.semi_axes,
+                            obstacle_std=(u.obstacle_std,) * 3,
+                            v_floor=min(u.v_floor, self.limits.v_max), v_max=self.limits.v_max)
+
+    def braking_params(self) -> BrakingParams:
+        return BrakingParams(d_th=self.uncertainty.d_th)
+
+    def key(self, *parts: str) -> str:
+        """A Zenoh key expression under this vehicle: ``rota/drone1/<parts>``."""
+        return "/".join((self.service.key_prefix, self.service.vehicle_id, *parts))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+_SECTION_TYPES = {
+    "service": ServiceSection, "mavlink": MavlinkSection, "zenoh": ZenohSection,
+    "stream": StreamSection, "limits": LimitsSection, "safety": SafetySection,
+    "uncertainty": UncertaintySection,
+}
+
+
+def _coerce(section: str, name: str, default: Any, value: Any) -> Any:
+    where = f"[{section}] {name}"
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: must be true or false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: must be an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: must be finite, got {value!r}")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: must be a string, got {value!r}")
+        return value
+    if isinstance(default, tuple):
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: must be a list, got {value!r}")
+        if default and isinstance(default[0], float):
+            if len(value) != len(default):
+                raise ConfigError(f"{where}: must be {len(default)} numbers, got {value!r}")
+            return tuple(_coerce(section, name, 0.0, v) for v in value)
+        return tuple(_coerce(section, name, "", v) for v in value)
+    raise ConfigError(f"{where}: unsupported setting type")  # pragma: no cover
+
+
+def from_dict(data: dict[str, Any], base: Config | None = None) -> Config:
+    """Build a configuration from nested dicts (TOML tables), over ``base``."""
+    cfg = base or Config()
+    if not isinstance(data, dict):
+        raise ConfigError("configuration must be a table")
+    for section, values in data.items():
+        if section not in _SECTION_TYPES:
+            raise ConfigError(f"[{section}]: unknown section (known: {', '.join(_SECTION_TYPES)})")
+        if not isinstance(values, dict):
+            raise ConfigError(f"[{section}]: must be a table")
+        current = getattr(cfg, section)
+        known = {f.name for f in fields(current)}
+        updates = {}
+        for name, value in values.items():
+            if name not in known:
+                raise ConfigError(f"[{section}] {name}: unknown setting "
+                                  f"(known: {', '.join(sorted(known))})")
+            updates[name] = _coerce(section, name, getattr(current, name), value)
+        cfg = replace(cfg, **{section: replace(current, **updates)})
+    validate(cfg)
+    return cfg
+
+
+def load(path: str | Path | None) -> Config:
+    """Read and validate a TOML file (None: the defaults)."""
+    if path is None:
+        return from_dict({})
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    return from_dict(data)
+
+
+def validate(cfg: Config) -> None:
+    """Range checks that need more than a type; errors name the setting."""
+
+    def positive(section: str, name: str) -> None:
+        v = getattr(getattr(cfg, section), name)
+        values = v if isinstance(v, tuple) else (v,)
+        if any(x <= 0 for x in values):
+            raise ConfigError(f"[{section}] {name}: must be positive, got {v!r}")
+
+    for section, name in [("mavlink", "connect_timeout_s"), ("mavlink", "health_timeout_s"),
+                          ("mavlink", "link_timeout_s"), ("zenoh", "telemetry_rate_hz"),
+                          ("zenoh", "status_rate_hz"), ("stream", "rate_hz"),
+                          ("stream", "takeoff_altitude_m"), ("limits", "v_max"),
+                          ("limits", "a_max"), ("limits", "dtau"), ("limits", "max_solve_s"),
+                          ("safety", "max_message_age_s"), ("safety", "max_input_speed"),
+                          ("safety", "stitch_tolerance_m"), ("safety", "max_tracking_error_m"),
+                          ("safety", "max_trajectory_points"), ("uncertainty", "d_th")]:
+        positive(section, name)
+    s = cfg.stream
+    if s.rate_hz < 2.5:
+        raise ConfigError("[stream] rate_hz: PX4 needs offboard setpoints faster than 2 Hz")
+    if s.prestream_s < 0.5:
+        raise ConfigError("[stream] prestream_s: PX4 needs >= 0.5 s of setpoints before "
+                          "OFFBOARD (newer PX4 about 1 s)")
+    if s.yaw not in ("path", "hold"):
+        raise ConfigError(f"[stream] yaw: must be 'path' or 'hold', got {s.yaw!r}")
+    if cfg.safety.input_frame not in ("ENU", "NED"):
+        raise ConfigError(f"[safety] input_frame: must be 'ENU' or 'NED', "
+                          f"got {cfg.safety.input_frame!r}")
+    if any(lo >= hi for lo, hi in zip(cfg.safety.geofence_min, cfg.safety.geofence_max,
+                                      strict=True)):
+        raise ConfigError("[safety] geofence_min: must be below geofence_max on every axis")
+    if cfg.safety.planner_timeout_s < 0:
+        raise ConfigError("[safety] planner_timeout_s: must be >= 0 (0 disables it)")
+    if cfg.limits.smoothness < 0:
+        raise ConfigError("[limits] smoothness: must be >= 0")
+    if cfg.zenoh.mode not in ("peer", "client", "router"):
+        raise ConfigError(f"[zenoh] mode: must be peer, client or router, got {cfg.zenoh.mode!r}")
+    if cfg.service.log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
+        raise ConfigError(f"[service] log_level: unknown level {cfg.service.log_level!r}")
+    for name in ("vehicle_id", "key_prefix"):
+        v = getattr(cfg.service, name)
+        if not v or any(c in v for c in "/*$?#") or v != v.strip():
+            raise ConfigError(f"[service] {name}: must be a non-empty Zenoh key chunk "
+                              f"without / * $ ? #, got {v!r}")
+    try:
+        cfg.rota_limits()
+        cfg.uncertainty_model()
+        cfg.chance_params()
+        cfg.braking_params()
+    except InputError as exc:
+        section = "limits" if exc.field.startswith("limits") else "uncertainty"
+        raise ConfigError(f"[{section}] {exc.field.split('.')[-1]}: {exc.message}") from None
