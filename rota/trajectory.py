@@ -147,14 +147,20 @@ class BSplineTrajectory(Trajectory):
                 raise InputError("knots", "must be non-decreasing")
             if knots[n] <= knots[k]:
                 raise InputError("knots", "the valid domain [knots[degree], knots[n]] is empty")
-        object.__setattr__(self, "knots", knots)
+        if self.knots is not None:
+            object.__setattr__(self, "knots", knots)
+        object.__setattr__(self, "_knot_vector", knots)
         self._set_spline(interpolate.BSpline(knots, cps, k, extrapolate=False))
+
+    @property
+    def knot_vector(self) -> FloatArray:
+        """The full knot vector (given, or made from ``knot_span``)."""
+        return self._knot_vector  # type: ignore[attr-defined]
 
     @property
     def domain(self) -> tuple[float, float]:
         n, k = len(self.control_points), int(self.degree)
-        assert self.knots is not None
-        return float(self.knots[k]), float(self.knots[n])
+        return float(self.knot_vector[k]), float(self.knot_vector[n])
 
 
 @dataclass(frozen=True)

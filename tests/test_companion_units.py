@@ -1,0 +1,188 @@
+"""The flight service's pieces that need no vehicle: configuration, frames,
+message validation, plans and stitching."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from companion.config import Config, ConfigError, from_dict, load
+from companion.frames import (
+    enu_to_ned,
+    heading_ned_deg,
+    ned_to_enu,
+    trajectory_to_enu,
+    yaw_enu_to_ned_deg,
+)
+from companion.messages import Rejected, parse_map, parse_trajectory
+from companion.plan import Hold, Plan, blend_time, brake_along
+from companion.service import _nearest_tau
+from rota import Limits, RetimeInput, retime
+from rota.schema import TrajectoryMessage, trajectory_to_dict
+from rota.voxelmap import VoxelMap
+from tests.strategies import bspline, polynomial, sampled
+
+CFG = from_dict({"safety": {"geofence_min": [-50.0, -50.0, -5.0]}})
+
+
+def payload(traj, **kw) -> bytes:
+    d = trajectory_to_dict(TrajectoryMessage(traj, id="t1"))
+    d.update(kw)
+    return json.dumps(d).encode()
+
+
+# ------------------------------------------------------------------ config
+def test_shipped_config_is_the_default():
+    assert load("configs/companion.toml") == Config()
+
+
+@pytest.mark.parametrize(("data", "words"), [
+    ({"limits": {"v_max": -1.0}}, "[limits] v_max: must be positive"),
+    ({"limits": {"v_maxx": 1.0}}, "[limits] v_maxx: unknown setting"),
+    ({"limit": {}}, "[limit]: unknown section"),
+    ({"limits": {"a_max": [1.0, 2.0]}}, "[limits] a_max: must be 3 numbers"),
+    ({"stream": {"rate_hz": 1.0}}, "[stream] rate_hz: PX4 needs"),
+    ({"stream": {"prestream_s": 0.1}}, "[stream] prestream_s"),
+    ({"stream": {"yaw": "north"}}, "[stream] yaw"),
+    ({"stream": {"auto_start": "yes"}}, "[stream] auto_start: must be true or false"),
+    ({"safety": {"input_frame": "NWU"}}, "[safety] input_frame"),
+    ({"safety": {"geofence_min": [0, 0, 20]}}, "[safety] geofence_min"),
+    ({"service": {"vehicle_id": "a/b"}}, "[service] vehicle_id"),
+    ({"uncertainty": {"delta": 2.0}}, "[uncertainty] delta"),
+    ({"uncertainty": {"m": -0.1}}, "[uncertainty] m"),
+    ({"zenoh": {"mode": "mesh"}}, "[zenoh] mode"),
+])
+def test_config_errors_name_the_setting(data, words):
+    with pytest.raises(ConfigError) as err:
+        from_dict(data)
+    assert words in str(err.value)
+
+
+def test_config_file_errors(tmp_path):
+    bad = tmp_path / "c.toml"
+    bad.write_text("[limits\nv_max = 1")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load(bad)
+    with pytest.raises(ConfigError, match="cannot read"):
+        load(tmp_path / "missing.toml")
+
+
+# ------------------------------------------------------------------ frames
+def test_enu_ned_conversion():
+    v = np.array([[1.0, 2.0, 3.0]])
+    assert np.allclose(enu_to_ned(v), [[2.0, 1.0, -3.0]])
+    assert np.allclose(ned_to_enu(enu_to_ned(v)), v)
+    assert yaw_enu_to_ned_deg(0.0) == pytest.approx(90.0)  # facing east
+    assert yaw_enu_to_ned_deg(np.pi / 2) == pytest.approx(0.0)  # facing north
+    assert heading_ned_deg([0.0, 1.0, 0.0]) == pytest.approx(0.0)  # north
+    assert heading_ned_deg([1.0, 0.0, 0.0]) == pytest.approx(90.0)  # east
+
+
+@pytest.mark.parametrize("traj", [bspline(1, 5, 1.0), polynomial(1, 5, 1.0),
+                                  sampled(1, 5, 1.0, True)])
+def test_trajectory_frame_conversion(traj):
+    ned = trajectory_to_enu(traj, "NED")  # the same numbers read as NED
+    tau = np.linspace(*traj.domain, 30)
+    for a, b in zip(traj.evaluate(tau), ned.evaluate(tau), strict=True):
+        assert np.allclose(ned_to_enu(a), b)
+
+
+# ---------------------------------------------------------------- messages
+def test_valid_trajectory_is_accepted_in_enu():
+    traj = bspline(2, 6, 1.0)
+    inc = parse_trajectory(payload(traj), CFG)
+    assert inc.id == "t1" and inc.frame == "ENU"
+    # NED input arrives converted
+    inc = parse_trajectory(payload(traj, frame="NED"), CFG)
+    assert np.allclose(inc.trajectory.position(1.0), ned_to_enu(traj.position(1.0)))
+
+
+def test_missing_frame_uses_the_configured_input_frame():
+    d = trajectory_to_dict(TrajectoryMessage(bspline(2, 6, 1.0)))
+    del d["frame"]
+    cfg = from_dict({"safety": {"input_frame": "NED", "geofence_min": [-50.0, -50.0, -5.0]}})
+    assert parse_trajectory(json.dumps(d).encode(), cfg).frame == "NED"
+
+
+@pytest.mark.parametrize(("make", "words"), [
+    (lambda t: b"{not json", "not valid JSON"),
+    (lambda t: payload(t, schema="rota/map"), "schema"),
+    (lambda t: payload(t, stamp=time.time() - 10), "stale"),
+    (lambda t: payload(t, stamp=time.time() + 10), "future"),
+    (lambda t: payload(t, control_points=(t.control_points + [60, 0, 0]).tolist()), "geofence"),
+    (lambda t: payload(t, knot_span=0.001), "planned speed"),
+    (lambda t: payload(t, control_points=[[0, 0, float("nan")]] * 6), "control_points"),
+])
+def test_bad_trajectories_are_rejected_with_reason(make, words):
+    traj = bspline(2, 6, 1.0)
+    with pytest.raises(Rejected) as err:
+        parse_trajectory(make(traj), CFG)
+    assert words in str(err.value)
+
+
+def test_map_message():
+    vmap = VoxelMap.from_points(np.array([[1.0, 1.0, 1.0]]), 0.1)
+    got = parse_map(json.dumps(vmap.to_dict() | {"stamp": time.time()}).encode(), CFG)
+    assert len(got) == 1
+    with pytest.raises(Rejected, match="stale"):
+        parse_map(json.dumps(vmap.to_dict() | {"stamp": 1.0}).encode(), CFG)
+    with pytest.raises(Rejected, match="resolution"):
+        parse_map(json.dumps(vmap.to_dict() | {"resolution": -1}).encode(), CFG)
+
+
+# ------------------------------------------------------------------- plans
+def _plan(t0=10.0):
+    traj = bspline(4, 7, 1.0)
+    return Plan("p", retime(RetimeInput(trajectory=traj, limits=Limits(2.0, 2.0))), t0)
+
+
+def test_plan_follows_the_result_and_holds_the_end():
+    plan = _plan()
+    r = plan.result
+    mid = plan.command(10.0 + r.duration / 2)
+    assert np.allclose(mid.position, r.sample(r.duration / 2).position[0])
+    end = plan.command(10.0 + r.duration + 5)
+    assert np.allclose(end.velocity, 0) and plan.finished(10.0 + r.duration + 5)
+
+
+def test_takeover_offset_blends_out_without_jumps():
+    plan = _plan()
+    gap = np.array([0.3, -0.2, 0.1])
+    blended = Plan(plan.id, plan.result, plan.t0, offset=gap,
+                   blend_s=blend_time(float(np.linalg.norm(gap))))
+    t = 10.0 + np.arange(0, 4.0, 0.02)
+    p = np.array([blended.command(x).position for x in t])
+    a = np.array([blended.command(x).acceleration for x in t])
+    a0 = np.array([plan.command(x).acceleration for x in t])
+    assert np.allclose(p[0] - plan.command(10.0).position, gap)
+    assert np.allclose(p[-1], plan.command(t[-1]).position)
+    assert np.abs(a - a0).max() <= 0.5 + 1e-6  # the blend's acceleration budget
+    assert np.linalg.norm(np.diff(p, axis=0), axis=1).max() <= 2.0 * 0.02 + 1e-6 + 0.5 * 0.02
+
+
+def test_brake_along_the_path_stops_within_the_braking_distance():
+    plan = _plan()
+    now = 10.0 + plan.result.duration / 2
+    v0 = float(np.linalg.norm(plan.command(now).velocity))
+    brake = brake_along(plan, now, decel=1.0)
+    assert np.allclose(brake.command(now).position, plan.command(now).position)
+    t = np.linspace(now, now + v0 + 1, 200)
+    speeds = [np.linalg.norm(brake.command(x).velocity) for x in t]
+    assert np.all(np.diff(speeds) <= 1e-9) and speeds[-1] == 0.0
+    travelled = np.linalg.norm(brake.command(t[-1]).position - brake.command(now).position)
+    assert travelled <= v0 * v0 / 2 + 1e-6
+    assert Hold(np.zeros(3)).finished(0.0)
+
+
+def test_nearest_tau_joins_the_first_pass():
+    """A path that comes back past the vehicle is joined at its first pass."""
+    t = np.linspace(0, 10, 11)
+    x = np.array([0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0.0])
+    from rota import SampledTrajectory
+
+    traj = SampledTrajectory(t=t, p=np.column_stack([x, 0.05 * t, 0 * t]))
+    tau = _nearest_tau(traj, np.array([1.0, 0.0, 0.0]), tolerance=0.5)
+    assert tau == pytest.approx(1.0, abs=0.05)
