@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/rota demo --out out/demo
+	$(BIN)/rota-companion demo --out out/demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

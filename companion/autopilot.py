@@ -57,6 +57,7 @@ class Autopilot:
         self._tel: TelemetryAsync | None = None
         self._action: ActionAsync | None = None
         self._offboard: OffboardAsync | None = None
+        self._system = None
         self._tasks: list[asyncio.Task] = []
 
     # ---------------------------------------------------------------- connection
@@ -68,6 +69,7 @@ class Autopilot:
         system = await self._mavsdk.first_autopilot(timeout_s)
         if system is None:
             raise AutopilotError(f"no autopilot on {self.url} within {timeout_s:.0f} s")
+        self._system = system
         self._tel = TelemetryAsync(system)
         self._action = ActionAsync(system)
         self._offboard = OffboardAsync(system)
@@ -117,7 +119,7 @@ class Autopilot:
         if self._mavsdk is not None:
             with contextlib.suppress(Exception):
                 self._mavsdk.destroy()
-        self._mavsdk = self._tel = self._action = self._offboard = None
+        self._mavsdk = self._tel = self._action = self._offboard = self._system = None
 
     # ------------------------------------------------------------------ commands
     async def _call(self, what: str, coro) -> None:  # noqa: ANN001
@@ -148,6 +150,16 @@ class Autopilot:
 
     async def stop_offboard(self) -> None:
         await self._call("offboard stop", self._offboard.stop())
+
+    async def stop_stream(self) -> None:
+        """End MAVSDK's periodic re-sending of the last setpoint (it keeps sending at
+        20 Hz once a setpoint was set, which would hide a dead service from PX4's
+        offboard-loss failsafe): the plugin is replaced by a fresh one."""
+        if self._offboard is None or self._system is None:
+            return
+        with contextlib.suppress(Exception):
+            self._offboard.destroy()
+        self._offboard = OffboardAsync(self._system)
 
     async def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
                    yaw_ned_deg: float) -> None:

@@ -52,7 +52,7 @@ class ZenohSection:
 @dataclass(frozen=True)
 class StreamSection:
     rate_hz: float = 50.0  # setpoint stream rate
-    prestream_s: float = 1.0  # setpoints streamed before requesting OFFBOARD (PX4 rule)
+    prestream_s: float = 1.5  # setpoints streamed before requesting OFFBOARD (PX4: ~1 s)
     yaw: str = "path"  # "path": face along the path; "hold": keep the yaw at start
     takeoff_altitude_m: float = 1.5
     auto_start: bool = False  # arm, take off and start offboard on the first trajectory

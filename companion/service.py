@@ -134,7 +134,7 @@ class Service:
                 self._event("service stopping: vehicle handed to PX4 Hold")
             except (AutopilotError, TimeoutError) as exc:
                 self._error("shutdown", f"could not switch PX4 to Hold: {exc}")
-        self.streaming = False
+        await self._stop_stream()
         with contextlib.suppress(Exception):
             self._publish_status()
         for task in self._tasks:
@@ -286,12 +286,16 @@ class Service:
         await asyncio.sleep(self.cfg.stream.prestream_s)
         if self.state != State.PRESTREAM:
             raise AutopilotError(f"start interrupted ({self.state.value})")
-        try:
-            await self.autopilot.start_offboard()
-        except AutopilotError:
-            self.streaming = False
-            self.state = State.AIRBORNE
-            raise
+        for attempt in range(3):  # PX4 may want a little more stream history
+            try:
+                await self.autopilot.start_offboard()
+                break
+            except AutopilotError:
+                if attempt == 2 or self.state != State.PRESTREAM:
+                    await self._stop_stream()
+                    self.state = State.AIRBORNE
+                    raise
+                await asyncio.sleep(0.5)
         self.state = State.OFFBOARD
         if self.latest is not None:
             self.last_trajectory_time = time.monotonic()
@@ -307,7 +311,7 @@ class Service:
     async def cmd_abort(self) -> str:
         self.latest, self.next_plan = None, None
         if self.streaming:
-            self.streaming = False
+            await self._stop_stream()
             await self.autopilot.hold()
             self.state = State.AIRBORNE
             return "offboard left: PX4 Hold"
@@ -315,10 +319,16 @@ class Service:
 
     async def cmd_land(self) -> str:
         self.latest, self.next_plan = None, None
-        self.streaming = False
+        await self._stop_stream()
         await self.autopilot.land()
         self.state = State.LANDING
         return "landing"
+
+    async def _stop_stream(self) -> None:
+        """Stop our stream and MAVSDK's own re-sending of the last setpoint."""
+        self.streaming = False
+        self.source, self.next_plan = None, None
+        await self.autopilot.stop_stream()
 
     async def _auto_start(self) -> None:
         try:
@@ -378,7 +388,7 @@ class Service:
                                     f"past its end")
             if tau0 > traj.domain[0]:
                 traj = Window(base=traj, start=tau0)
-            start_velocity = take.velocity
+            start_velocity = _along_path(traj, take.velocity, incoming.id)
         safety = None
         if self.map is not None:
             safety = Safety(map=self.map, uncertainty=self.uncertainty.model(),
@@ -509,14 +519,14 @@ class Service:
                                 "dropped; a new 'start' is needed after reconnection")
                 else:
                     self._error("mavlink", "link lost")
-                self.streaming, self.source, self.next_plan = False, None, None
                 self.latest = None
+                asyncio.create_task(self._stop_stream())
                 self.state = State.LINK_LOST
             return
         if self.state in (State.PRESTREAM, State.OFFBOARD):
             if self.state == State.OFFBOARD and tel.flight_mode != "OFFBOARD":
-                self.streaming, self.source, self.next_plan, self.latest = (False, None,
-                                                                           None, None)
+                self.latest = None
+                asyncio.create_task(self._stop_stream())
                 self._error("px4", f"PX4 left offboard (now {tel.flight_mode}); stream "
                             "stopped, a new 'start' is needed")
                 self.state = State.AIRBORNE
@@ -631,6 +641,29 @@ class Service:
 
     def _event(self, message: str) -> None:
         log.info("%s", message)
+
+
+def _along_path(traj, velocity: np.ndarray, ident: str) -> np.ndarray:  # noqa: ANN001
+    """The commanded velocity's component along the new path's tangent at its start.
+
+    A replan never starts exactly on the commanded velocity; the cross-track
+    rest (up to 0.5 m/s or 30 % of the speed) is left to PX4's position loop.
+    More than that means the new path turns away sharply: rejected."""
+    _, d1, _ = traj.evaluate(traj.domain[0])
+    norm = float(np.linalg.norm(d1[0]))
+    speed = float(np.linalg.norm(velocity))
+    if norm <= 1e-9:
+        if speed > 0.3:
+            raise msgs.Rejected(f"trajectory {ident!r}: starts at rest while the vehicle moves "
+                                f"at {speed:.2f} m/s")
+        return np.zeros(3)
+    tangent = d1[0] / norm
+    along = max(float(velocity @ tangent), 0.0) * tangent
+    cross = float(np.linalg.norm(velocity - along))
+    if cross > max(0.5, 0.3 * speed):
+        raise msgs.Rejected(f"trajectory {ident!r}: its start direction differs from the "
+                            f"vehicle's velocity by {cross:.2f} m/s")
+    return along
 
 
 def _nearest_tau(traj, position: np.ndarray, tolerance: float) -> float:  # noqa: ANN001

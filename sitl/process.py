@@ -1,0 +1,142 @@
+"""The simulated vehicle in its own process, so that it does not share the GIL
+with the service under test (as PX4 would not), with a small control pipe for
+tests and the demo: read the true state, cut the link, and collect the record.
+
+    with SimProcess(world="forest", seed=3, port=port) as sim:
+        ...                        # MAVSDK: udpin://127.0.0.1:<port>
+        sim.state()                # true / estimated position, mode, collisions
+    report = sim.report            # collisions and the flight record
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class SimReport:
+    """What happened, in the world's ENU frame."""
+
+    collisions: list[dict[str, Any]] = field(default_factory=list)
+    time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    true_position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    estimated_position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    mode: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
+    events: list[tuple[float, str]] = field(default_factory=list)
+    home_enu: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - other process
+    from sitl.estimation import EstimationErrorParams
+    from sitl.vehicle import SimVehicle, VehicleParams, ned_to_enu
+    from sitl.world import World, get_world
+
+    world = None
+    if options.get("world_dict") is not None:
+        world = World.from_dict(options["world_dict"])
+    elif options.get("world") not in (None, "none"):
+        world = get_world(options["world"], seed=options["seed"])
+    start = getattr(world, "start", None)
+    home = (float(start[0]), float(start[1]), 0.0) if start is not None else (0.0, 0.0, 0.0)
+    params = VehicleParams(home_enu_m=home, **options.get("params", {}))
+    est = EstimationErrorParams(**options.get("estimation", {}))
+    sim = SimVehicle(params, estimation=est, world=world, seed=options["seed"],
+                     port=options["port"], record_history=True, history_decimation=5)
+    sim.start()
+    conn.send(("ready", sim.local_port, home))
+    try:
+        while True:
+            if not conn.poll(0.05):
+                continue
+            cmd, *args = conn.recv()
+            if cmd == "state":
+                t, e = sim.true_state(), sim.estimated_state()
+                conn.send({"time_s": t.time_s, "true_position": t.position_enu,
+                           "estimated_position": e.position_enu,
+                           "velocity": ned_to_enu(t.velocity_ned), "mode": sim.mode.name,
+                           "armed": sim.armed, "collisions": len(sim.collisions),
+                           "failsafe": sim.failsafe_active, "landed_state": sim.landed_state})
+            elif cmd == "block":
+                sim.link_blocked = bool(args[0])
+                conn.send(True)
+            elif cmd == "stop":
+                break
+    finally:
+        sim.stop()
+        h = sim.history.arrays()
+        conn.send(SimReport(
+            collisions=[{"time_s": c.time_s, "position": c.position_enu,
+                         "signed_distance_m": c.signed_distance_m} for c in sim.collisions],
+            time_s=h["time_s"], true_position=ned_to_enu(h["true_position_ned"]) + home,
+            estimated_position=ned_to_enu(h["estimated_position_ned"]) + home,
+            velocity=ned_to_enu(h["velocity_ned"]), mode=h["mode"],
+            events=list(sim.events), home_enu=np.asarray(home)))
+
+
+class SimProcess:
+    """A :class:`sitl.vehicle.SimVehicle` running in a child process.
+
+    Args:
+        world: a world name of :func:`sitl.world.get_world`, or None.
+        world_dict: a world as :meth:`sitl.world.World.to_dict` (instead of a name).
+        seed: world and noise seed.
+        port: the companion's UDP port (MAVSDK ``udpin://127.0.0.1:<port>``).
+        params: overrides of :class:`sitl.vehicle.VehicleParams` fields.
+        estimation: overrides of :class:`sitl.estimation.EstimationErrorParams` fields.
+    """
+
+    def __init__(self, *, port: int, world: str | None = None,
+                 world_dict: dict[str, Any] | None = None, seed: int = 0,
+                 params: dict[str, Any] | None = None,
+                 estimation: dict[str, Any] | None = None) -> None:
+        self.options = {"port": port, "world": world, "world_dict": world_dict, "seed": seed,
+                        "params": params or {}, "estimation": estimation or {}}
+        self.report: SimReport | None = None
+        self.home_enu = np.zeros(3)
+        self._ctx = multiprocessing.get_context("spawn")
+        self._conn: Any = None
+        self._proc: Any = None
+
+    def __enter__(self) -> SimProcess:
+        parent, child = self._ctx.Pipe()
+        self._proc = self._ctx.Process(target=_child, args=(child, self.options), daemon=True)
+        self._proc.start()
+        self._conn = parent
+        if not parent.poll(60):
+            self._proc.kill()
+            raise RuntimeError("simulated vehicle did not start")
+        _, self.local_port, home = parent.recv()
+        self.home_enu = np.asarray(home, dtype=float)
+        return self
+
+    def _ask(self, *message: Any) -> Any:
+        self._conn.send(message)
+        if not self._conn.poll(10):
+            raise RuntimeError("simulated vehicle does not answer")
+        return self._conn.recv()
+
+    def state(self) -> dict[str, Any]:
+        """True and estimated position (world ENU), velocity, mode, collisions so far."""
+        return self._ask("state")
+
+    def block_link(self, blocked: bool = True) -> None:
+        """Drop all MAVLink traffic in both directions (a link loss)."""
+        self._ask("block", blocked)
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self._conn.send(("stop",))
+            while self._conn.poll(20):
+                item = self._conn.recv()
+                if isinstance(item, SimReport):
+                    self.report = item
+                    break
+        finally:
+            self._proc.join(5)
+            if self._proc.is_alive():
+                self._proc.kill()
