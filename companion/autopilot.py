@@ -29,6 +29,22 @@ FloatArray = NDArray[np.float64]
 log = logging.getLogger("rota.autopilot")
 
 
+_MAVSDK_LOG = logging.getLogger("rota.mavsdk")
+_LEVELS = {0: logging.DEBUG, 1: logging.INFO, 2: logging.WARNING, 3: logging.ERROR}
+
+
+def route_mavsdk_logs() -> None:
+    """Send MAVSDK's own log lines to Python logging (logger ``rota.mavsdk``)
+    instead of its coloured stdout output."""
+    from mavsdk.logging import log_subscribe
+
+    def handler(level: object, message: str, file: str | None, line: int) -> bool:
+        _MAVSDK_LOG.log(_LEVELS.get(int(level), logging.INFO), "%s", message)
+        return True
+
+    log_subscribe(handler)
+
+
 class AutopilotError(RuntimeError):
     """A command was refused or failed; the message says which and why."""
 
@@ -63,6 +79,7 @@ class Autopilot:
     # ---------------------------------------------------------------- connection
     async def connect(self, timeout_s: float) -> None:
         """Open the MAVLink connection and wait for an autopilot."""
+        route_mavsdk_logs()
         self._mavsdk = Mavsdk(
             Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
         await self._mavsdk.add_any_connection(self.url)

@@ -40,6 +40,9 @@ def setup_logging(level: str) -> None:
     else:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     logging.basicConfig(level=level.upper(), handlers=[handler], force=True)
+    # MAVSDK's debug chatter only when asked for explicitly
+    logging.getLogger("rota.mavsdk").setLevel(max(logging.INFO, logging.getLevelName(
+        level.upper())))
 
 
 async def _serve(cfg) -> None:  # noqa: ANN001

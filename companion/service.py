@@ -96,8 +96,10 @@ class Service:
         self.last_result_summary: dict[str, Any] = {}
         self.solve_latency = 0.25  # s, running estimate used to pick the takeover time
         self.send_times: deque[float] = deque(maxlen=3000)
+        self.sent: deque[tuple[float, np.ndarray]] = deque(maxlen=30000)  # (time, position)
         self.yaw_ned = 0.0
         self._last_sent = Command(np.zeros(3))
+        self._offboard_seen = False
         self.session: zenoh.Session | None = None
         self.notifier = sdnotify.SystemdNotifier()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -296,6 +298,7 @@ class Service:
                     self.state = State.AIRBORNE
                     raise
                 await asyncio.sleep(0.5)
+        self._offboard_seen = False  # telemetry confirms the mode a moment later
         self.state = State.OFFBOARD
         if self.latest is not None:
             self.last_trajectory_time = time.monotonic()
@@ -474,6 +477,7 @@ class Service:
                 cmd = self.source.command(now)
             self._update_yaw(cmd)
             self.send_times.append(now)
+            self.sent.append((now, cmd.position))
             self._last_sent = cmd
             try:
                 await self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
@@ -524,7 +528,10 @@ class Service:
                 self.state = State.LINK_LOST
             return
         if self.state in (State.PRESTREAM, State.OFFBOARD):
-            if self.state == State.OFFBOARD and tel.flight_mode != "OFFBOARD":
+            if self.state == State.OFFBOARD and tel.flight_mode == "OFFBOARD":
+                self._offboard_seen = True
+            if (self.state == State.OFFBOARD and tel.flight_mode != "OFFBOARD"
+                    and self._offboard_seen):
                 self.latest = None
                 asyncio.create_task(self._stop_stream())
                 self._error("px4", f"PX4 left offboard (now {tel.flight_mode}); stream "

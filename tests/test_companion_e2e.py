@@ -1,0 +1,198 @@
+"""End-to-end: the flight service over real Zenoh sessions and MAVSDK (UDP on
+loopback) against the ``sitl`` vehicle in its own process (issue #6)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import pytest
+
+from companion.demo import (
+    GroundStation,
+    closest_approach,
+    demo_config,
+    fly_to_goal,
+    free_tcp_port,
+    map_message,
+    to_local,
+    trajectory_message,
+)
+from companion.service import Service
+from sitl.mavsdk_util import free_udp_port
+from sitl.planner import plan
+from sitl.process import SimProcess
+from sitl.world import get_world
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+SPEED = 2.0
+
+
+def run_flight(scenario, seed: int = 3, world_name: str = "forest", **overrides):
+    """Start vehicle + service + ground station, run ``scenario(gs, service, sim,
+    world)``, return its result and the vehicle's report."""
+    world = get_world(world_name, seed=seed)
+    mav, zport = free_udp_port(), free_tcp_port()
+    with tempfile.TemporaryDirectory() as state:
+        cfg = demo_config(mav, zport, SPEED, state, **overrides)
+
+        async def main():
+            service = Service(cfg)
+            stop = asyncio.Event()
+            task = asyncio.create_task(service.run(stop))
+            gs = GroundStation(cfg, cfg.zenoh.listen[0])
+            try:
+                return await scenario(gs, service, sim, world)
+            finally:
+                stop.set()
+                await task
+                gs.close()
+
+        with SimProcess(port=mav, world=world_name, seed=seed) as sim:
+            out = asyncio.run(main())
+    return out, sim.report
+
+
+async def take_off(gs, world, home):
+    await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
+    gs.publish("map", map_message(world, home))
+    await gs.wait_for(lambda s: s.get("map_voxels"), 10, "map")
+    for name in ("arm", "takeoff"):
+        assert (await gs.command(name))["ok"]
+        await asyncio.sleep(0.5)
+    await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
+    await asyncio.sleep(1.0)
+
+
+def test_three_replans_reach_the_goal_without_collision_or_jumps():
+    async def scenario(gs, service, sim, world):
+        result = await fly_to_goal(gs, world, sim.home_enu, SPEED, 2.0, replans=3)
+        return result, list(service.sent), list(gs.statuses)
+
+    (result, sent, statuses), report = run_flight(scenario)
+    assert not report.collisions
+    t = np.array([s[0] for s in sent])
+    p = np.array([s[1] for s in sent])
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    dt = np.diff(t)
+    # consecutive setpoints never jump: at most the speed limit times the period
+    # (plus the takeover blend's own small velocity, at most 0.4 m/s)
+    assert np.all(step <= (SPEED + 0.4) * dt + 1e-3), step.max()
+    ids = {s.get("trajectory_id") for s in statuses} - {None}
+    assert {"plan-0", "plan-1", "plan-2", "plan-3"} <= ids
+    # offboard only after a pre-stream: the state sequence and the vehicle agree
+    states = [s["state"] for s in statuses]
+    assert "prestream" in states and states.index("prestream") < states.index("offboard")
+    assert any("OFFBOARD" in e for _, e in report.events)
+
+
+def test_malformed_trajectory_mid_flight_is_rejected_and_flight_continues():
+    async def scenario(gs, service, sim, world):
+        home = sim.home_enu
+        await take_off(gs, world, home)
+        traj = plan(world, v_max=SPEED, a_max=2.0)
+        gs.publish("trajectory", trajectory_message(to_local(traj, home), "good"))
+        assert (await gs.command("start"))["ok"]
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "progress")
+        bad = trajectory_message(to_local(traj, home), "bad")
+        bad["control_points"][4][1] = "NaN"
+        gs.publish("trajectory", bad)
+        bad2 = trajectory_message(to_local(traj, home), "far")
+        bad2["control_points"] = (np.asarray(bad2["control_points"]) + [0, 0, 40]).tolist()
+        gs.publish("trajectory", bad2)
+        await asyncio.sleep(1.0)
+        errors = [s["last_error"]["message"] for s in gs.statuses if s.get("last_error")]
+        mid = gs.status
+        await gs.wait_for(lambda s: s.get("command") == "hold", 40, "end of trajectory")
+        return errors, mid
+
+    (errors, mid), report = run_flight(scenario)
+    assert any("control_points[4][1]" in e for e in errors), errors
+    assert any("geofence" in e for e in errors), errors
+    assert mid["trajectory_id"] == "good" and mid["command"] == "plan"
+    assert not report.collisions
+
+
+def test_planner_silence_ends_in_a_hold():
+    async def scenario(gs, service, sim, world):
+        home = sim.home_enu
+        await take_off(gs, world, home)
+        traj = plan(world, v_max=SPEED, a_max=2.0)
+        gs.publish("trajectory", trajectory_message(to_local(traj, home), "only"))
+        assert (await gs.command("start"))["ok"]
+        await gs.wait_for(lambda s: s.get("hold_reason") and "no trajectory" in
+                          s["hold_reason"], 20, "the planner-silence hold")
+        t_hold = time.monotonic()
+        await gs.wait_for(lambda s: s.get("command") == "hold", 10, "the stop")
+        await asyncio.sleep(1.0)
+        state = sim.state()
+        return gs.status, time.monotonic() - t_hold, state
+
+    (status, _, state), report = run_flight(
+        scenario, safety={"planner_timeout_s": 2.0})
+    assert status["command"] == "hold" and status["state"] == "offboard"
+    assert np.linalg.norm(state["velocity"]) < 0.5  # stopped, holding
+    assert not report.collisions
+
+
+def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
+    """The service as systemd runs it (a process), killed with SIGTERM in flight."""
+    world = get_world("forest", seed=4)
+    mav, zport = free_udp_port(), free_tcp_port()
+    cfg = demo_config(mav, zport, SPEED, str(tmp_path))
+    cfg_file = tmp_path / "companion.toml"
+    cfg_file.write_text(_toml(cfg))
+
+    async def scenario(gs, sim):
+        home = sim.home_enu
+        await take_off(gs, world, home)
+        traj = plan(world, v_max=SPEED, a_max=2.0)
+        gs.publish("trajectory", trajectory_message(to_local(traj, home), "t"))
+        assert (await gs.command("start"))["ok"]
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "progress")
+
+    with SimProcess(port=mav, world="forest", seed=4) as sim:
+        proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config",
+                                 str(cfg_file)], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+        gs = GroundStation(cfg, f"tcp/127.0.0.1:{zport}")
+        try:
+            asyncio.run(scenario(gs, sim))
+            proc.send_signal(signal.SIGTERM)
+            out, _ = proc.communicate(timeout=20)
+            time.sleep(0.5)
+            state = sim.state()
+        finally:
+            gs.close()
+            if proc.poll() is None:
+                proc.kill()
+    assert proc.returncode == 0, out
+    assert "PX4 Hold" in out
+    assert state["mode"] == "AUTO_LOITER" and state["armed"]
+    assert not sim.report.collisions
+
+
+def _toml(cfg) -> str:
+    lines = []
+    for section, values in cfg.to_dict().items():
+        lines.append(f"[{section}]")
+        for k, v in values.items():
+            lines.append(f"{k} = {json.dumps(list(v) if isinstance(v, tuple) else v)}")
+    return "\n".join(lines) + "\n"
+
+
+def test_closest_approach_helper_measures_clearance():
+    world = get_world("pillar", seed=0)
+    from sitl.process import SimReport
+
+    rep = SimReport(true_position=np.array([[0.0, 0.0, 1.0], *[list(world.start)]]))
+    clearance = closest_approach(world, rep)
+    expected = min(float(world.signed_distance(np.array([[0.0, 0.0, 1.0], world.start])).min())
+                   - world.robot_radius, np.inf)
+    assert clearance == pytest.approx(expected)
