@@ -59,6 +59,7 @@ class Telemetry:
     flight_mode: str = "UNKNOWN"
     landed_state: str = "UNKNOWN"
     healthy: bool = False
+    position_std: FloatArray | None = None  # PX4's position std per axis (ENU), if reported
     position_time: float = 0.0
     seen: dict[str, float] = field(default_factory=dict)
 
@@ -96,7 +97,8 @@ class Autopilot:
                            ("armed", self._tel.subscribe_armed()),
                            ("mode", self._tel.subscribe_flight_mode()),
                            ("landed", self._tel.subscribe_landed_state()),
-                           ("health", self._tel.subscribe_health_all_ok()))]
+                           ("health", self._tel.subscribe_health_all_ok()),
+                           ("odometry", self._tel.subscribe_odometry()))]
 
     async def _watch(self, name: str, gen) -> None:  # noqa: ANN001
         t = self.telemetry
@@ -116,6 +118,13 @@ class Autopilot:
                 t.landed_state = _name(item)
             elif name == "health":
                 t.healthy = bool(item)
+            elif name == "odometry":
+                # pose covariance: upper-right triangle of the 6x6 matrix, row-major;
+                # x, y, z variances at 0, 6, 11 (NaN in the first entry: unknown)
+                cov = list(getattr(item.pose_covariance, "covariance_matrix", None) or [])
+                var = np.array([cov[i] for i in (0, 6, 11)]) if len(cov) >= 12 else None
+                ok = var is not None and np.all(np.isfinite(var)) and np.all(var >= 0)
+                t.position_std = ned_to_enu(np.sqrt(var)) if ok else None
 
     def link_ok(self, timeout_s: float) -> bool:
         """Telemetry arrived within ``timeout_s``."""

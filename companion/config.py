@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from companion.estimator import EstimatorSettings
 from rota.braking import BrakingParams
 from rota.chance import ChanceParams, UncertaintyModel
 from rota.errors import InputError
@@ -102,6 +103,7 @@ class Config:
     limits: LimitsSection = field(default_factory=LimitsSection)
     safety: SafetySection = field(default_factory=SafetySection)
     uncertainty: UncertaintySection = field(default_factory=UncertaintySection)
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
 
     # ----------------------------------------------------------- derived objects
     def rota_limits(self) -> Limits:
@@ -131,7 +133,7 @@ class Config:
 _SECTION_TYPES = {
     "service": ServiceSection, "mavlink": MavlinkSection, "zenoh": ZenohSection,
     "stream": StreamSection, "limits": LimitsSection, "safety": SafetySection,
-    "uncertainty": UncertaintySection,
+    "uncertainty": UncertaintySection, "estimator": EstimatorSettings,
 }
 
 
@@ -248,6 +250,12 @@ def validate(cfg: Config) -> None:
         if not v or any(c in v for c in "/*$?#") or v != v.strip():
             raise ConfigError(f"[service] {name}: must be a non-empty Zenoh key chunk "
                               f"without / * $ ? #, got {v!r}")
+    e = cfg.estimator
+    if e.min_samples < 0 or e.min_speed < 0 or e.gate <= 0 or e.measurement_std <= 0:
+        raise ConfigError("[estimator] min_samples, min_speed >= 0; gate, measurement_std > 0")
+    if not (e.m_min <= cfg.uncertainty.m <= e.m_max and e.b_min <= cfg.uncertainty.b <= e.b_max):
+        raise ConfigError("[estimator] m_min: the bounds must contain the configured "
+                          "[uncertainty] m and b")
     try:
         cfg.rota_limits()
         cfg.uncertainty_model()

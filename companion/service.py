@@ -20,6 +20,7 @@ import time
 from collections import deque
 from dataclasses import replace
 from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ import zenoh
 from companion import messages as msgs
 from companion.autopilot import Autopilot, AutopilotError
 from companion.config import Config, ConfigError, from_dict
+from companion.estimator import UncertaintyEstimator, evidence, tracking_std
 from companion.frames import heading_ned_deg
 from companion.plan import Brake, Command, Hold, Plan, blend_time, brake_along
 from companion.retimer import Retimer
@@ -43,7 +45,7 @@ from rota.voxelmap import VoxelMap
 log = logging.getLogger("rota.companion")
 
 #: Settings that can change at run time through the config queryable.
-RUNTIME_SECTIONS = ("limits", "uncertainty", "safety")
+RUNTIME_SECTIONS = ("limits", "uncertainty", "safety")  # [estimator]: the estimator query
 #: Share of the smallest acceleration limit used to brake to a hold.
 BRAKE_SHARE = 0.7
 
@@ -80,7 +82,20 @@ class Service:
 
     def __init__(self, cfg: Config, uncertainty: UncertaintySource | None = None) -> None:
         self.cfg = cfg
-        self.uncertainty = uncertainty or ConfiguredUncertainty(cfg.uncertainty_model())
+        self.estimator: UncertaintyEstimator | None = None
+        if uncertainty is None and cfg.estimator.enabled:
+            path = Path(cfg.service.state_dir) / f"uncertainty-{cfg.service.vehicle_id}.json"
+            try:
+                self.estimator = UncertaintyEstimator(cfg.uncertainty_model(), cfg.estimator,
+                                                      path, v_check=cfg.limits.v_max)
+            except ValueError as exc:  # a corrupt file: start from the prior, keep the file
+                log.error("%s; starting from the configured model", exc)
+                path.rename(path.with_suffix(".corrupt"))
+                self.estimator = UncertaintyEstimator(cfg.uncertainty_model(), cfg.estimator,
+                                                      path, v_check=cfg.limits.v_max)
+        self.uncertainty = (uncertainty or self.estimator
+                            or ConfiguredUncertainty(cfg.uncertainty_model()))
+        self.track_errors: deque[np.ndarray] = deque(maxlen=10)  # 1 s at the monitor rate
         self.autopilot = Autopilot(cfg.mavlink.url)
         self.retimer = Retimer()
         self.state = State.CONNECTING
@@ -116,7 +131,7 @@ class Service:
         self._tasks = [asyncio.create_task(c, name=n) for n, c in (
             ("connection", self._connection()), ("stream", self._stream_loop()),
             ("monitor", self._monitor()), ("replan", self._replanner()),
-            ("publish", self._publisher()))]
+            ("publish", self._publisher()), ("estimator", self._learn()))]
         self.notifier.notify("READY=1")
         log.info("service up: vehicle %s, MAVLink %s, Zenoh keys %s/**",
                  self.cfg.service.vehicle_id, self.cfg.mavlink.url, self.cfg.key(""))
@@ -146,6 +161,9 @@ class Service:
                 await task
         await self.autopilot.close()
         self.retimer.close()
+        if self.estimator is not None:
+            with contextlib.suppress(OSError):
+                self.estimator.save()
         for obj in self._zenoh_objs:
             with contextlib.suppress(Exception):
                 obj.undeclare()
@@ -167,6 +185,7 @@ class Service:
             s.declare_subscriber(k("map"), self._threadsafe(self._on_map)),
             s.declare_queryable(k("cmd", "*"), self._threadsafe(self._on_command)),
             s.declare_queryable(k("config"), self._threadsafe(self._on_config)),
+            s.declare_queryable(k("estimator"), self._threadsafe(self._on_estimator)),
         ]
 
     def _threadsafe(self, handler):  # noqa: ANN001, ANN202
@@ -237,9 +256,11 @@ class Service:
                         raise ConfigError(f"[{section}]: cannot change at run time "
                                           f"(only {', '.join(RUNTIME_SECTIONS)}); restart")
                 self.cfg = from_dict(request["set"], base=self.cfg)
-                if "uncertainty" in request["set"] and isinstance(self.uncertainty,
-                                                                  ConfiguredUncertainty):
-                    self.uncertainty = ConfiguredUncertainty(self.cfg.uncertainty_model())
+                if "uncertainty" in request["set"]:
+                    if isinstance(self.uncertainty, ConfiguredUncertainty):
+                        self.uncertainty = ConfiguredUncertainty(self.cfg.uncertainty_model())
+                    elif self.estimator is not None:
+                        self.estimator.prior = self.cfg.uncertainty_model()
                 message = "configuration updated"
                 self._event(f"configuration updated: {json.dumps(request['set'])}")
             except (ConfigError, msgs.Rejected) as exc:
@@ -251,6 +272,64 @@ class Service:
             query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
         finally:
             query.drop()
+
+    def _on_estimator(self, query: zenoh.Query) -> None:
+        """Read (no payload), or ``{"reset": true}``, ``{"freeze": bool}``,
+        ``{"set": {"m": .., "b": ..}}``."""
+        ok, message = True, ""
+        est = self.estimator
+        try:
+            if est is None:
+                raise ValueError("the in-flight estimator is disabled ([estimator] enabled)")
+            raw = query.payload.to_bytes() if query.payload is not None else b""
+            if raw:
+                request = msgs.decode(raw, "estimator")
+                if not isinstance(request, dict):
+                    raise ValueError("request must be a JSON object")
+                if request.get("reset"):
+                    est.reset()
+                    message = "estimate reset to the configured model"
+                if "freeze" in request:
+                    est.freeze(bool(request["freeze"]))
+                    message = f"estimator {'frozen' if request['freeze'] else 'learning'}"
+                if "set" in request:
+                    values = request["set"]
+                    est.set(float(values["m"]), float(values["b"]))
+                    message = f"estimate set to m={values['m']}, b={values['b']}"
+                est.save()
+                self._event(message)
+        except (ValueError, KeyError, TypeError, msgs.Rejected, OSError) as exc:
+            ok, message = False, str(exc)
+            self._error("estimator", message)
+        body = est.describe() if est is not None else None
+        payload = msgs.dumps(msgs.envelope("rota/estimator", ok=ok, message=message,
+                                           estimator=body))
+        try:
+            query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+        finally:
+            query.drop()
+
+    async def _learn(self) -> None:
+        """5 Hz: feed the estimator while flying in offboard; save every 10 s."""
+        k = 0
+        while True:
+            await asyncio.sleep(0.2)
+            k += 1
+            est, tel = self.estimator, self.autopilot.telemetry
+            if est is None:
+                return
+            if k % 50 == 0 and est.samples:
+                with contextlib.suppress(OSError):
+                    est.save()
+            if not (self.streaming and self.state == State.OFFBOARD and tel.velocity is not None
+                    and self.autopilot.link_ok(self.cfg.mavlink.link_timeout_s)):
+                continue
+            s_track = tracking_std(np.asarray(self.track_errors))
+            s_px4 = (float(np.sqrt(np.mean(tel.position_std ** 2)))
+                     if tel.position_std is not None else float("nan"))
+            z = evidence(s_px4, s_track, est.settings.include_tracking)
+            if np.isfinite(z):
+                est.observe(float(np.linalg.norm(tel.velocity)), z)
 
     # =============================================================== commands
     def _require(self, *states: State) -> None:
@@ -539,8 +618,9 @@ class Service:
                 self.state = State.AIRBORNE
                 return
             if self.state == State.OFFBOARD and tel.position is not None:
-                err = float(np.linalg.norm(tel.position - self._commanded(time.monotonic())
-                                           .position))
+                error = tel.position - self._commanded(time.monotonic()).position
+                self.track_errors.append(error)
+                err = float(np.linalg.norm(error))
                 if err > cfg.safety.max_tracking_error_m and not isinstance(self.source,
                                                                             Hold | Brake):
                     self._brake(f"tracking error {err:.2f} m over "
