@@ -5,7 +5,9 @@ Commands (``rota COMMAND --help`` for each):
 * ``rota retime IN.json -o OUT.json [--plot OUT.png]``: re-time a trajectory
   message (``docs/protocol.md``) and write a result message.
 * ``rota example [-o FILE]``: write the bundled example trajectory.
-* ``rota demo [--out DIR]``: the main job (see README).
+* ``rota demo [--out DIR]``: re-time the bundled example and plot it.
+* ``rota bench [--out DIR] [--quick] [--repeats N]``: the paper's Table II with
+  peers (``docs/benchmarks.md``).
 
 Exit status: 0 when the optimal re-time was found, 3 when the result is the
 fallback (the result is still written, its ``message`` says why), 4 when the
@@ -23,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rota.bench import add_bench_parser
 from rota.braking import BrakingParams
 from rota.chance import ChanceParams, UncertaintyModel
 from rota.errors import InputError
@@ -197,9 +200,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="-", help="file, or - for stdout (default)")
     p.set_defaults(func=cmd_example)
 
-    p = sub.add_parser("demo", help="the main job: see README")
+    p = sub.add_parser("demo", help="re-time the bundled example and plot it")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
+
+    add_bench_parser(sub)
     return parser
 
 

@@ -1,0 +1,74 @@
+"""The same end-to-end flight through the flight service against each vehicle
+backend: the `sitl` vehicle always, real PX4 SITL (SIH) when ``ROTA_PX4_BUILD``
+names a PX4 build (issue #5); otherwise that case is skipped and says why."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import tempfile
+
+import numpy as np
+import pytest
+
+from companion.demo import GroundStation, demo_config, free_tcp_port, trajectory_message
+from companion.service import Service
+from sitl.mavsdk_util import free_udp_port
+from sitl.planner import straight_line
+from sitl.process import SimProcess
+from sitl.px4 import PX4_PORT, Px4Sitl, px4_build, skip_reason
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+
+
+@contextlib.contextmanager
+def vehicle(backend: str):
+    if backend == "sim":
+        port = free_udp_port()
+        with SimProcess(port=port, seed=1):
+            yield port
+    else:
+        build = px4_build()
+        if build is None:
+            pytest.skip(skip_reason())
+        with Px4Sitl(build):
+            yield PX4_PORT
+
+
+@pytest.mark.parametrize("backend", ["sim", "px4"])
+def test_service_flies_10_m_and_lands(backend):
+    with vehicle(backend) as port, tempfile.TemporaryDirectory() as state:
+        cfg = demo_config(port, free_tcp_port(), 2.0, state,
+                          stream={"takeoff_altitude_m": 2.0})
+
+        async def main():
+            service = Service(cfg)
+            stop = asyncio.Event()
+            task = asyncio.create_task(service.run(stop))
+            gs = GroundStation(cfg, cfg.zenoh.listen[0])
+            try:
+                await gs.wait_for(lambda s: s["state"] == "ready", 60, "health ok")
+                for name in ("arm", "takeoff"):
+                    assert (await gs.command(name))["ok"]
+                    await asyncio.sleep(0.5)
+                await gs.wait_for(lambda s: s["state"] == "airborne", 40, "takeoff")
+                await asyncio.sleep(2.0)
+                p0 = np.asarray(gs.telemetry["position"])
+                traj = straight_line(p0, p0 + [10.0, 0.0, 0.0], v_max=2.0, a_max=1.5)
+                gs.publish("trajectory", trajectory_message(traj, "ten"))
+                assert (await gs.command("start"))["ok"]
+                await gs.wait_for(lambda s: s.get("trajectory_id") == "ten", 10, "the plan")
+                await gs.wait_for(lambda s: s.get("command") == "hold", 40, "the end")
+                await asyncio.sleep(1.0)
+                p1 = np.asarray(gs.telemetry["position"])
+                assert (await gs.command("land"))["ok"]
+                await gs.wait_for(lambda s: s["state"] == "ready" and not s["armed"], 60,
+                                  "landed and disarmed")
+                return p0, p1
+            finally:
+                stop.set()
+                await task
+                gs.close()
+
+        p0, p1 = asyncio.run(main())
+    assert np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])) < 0.5
