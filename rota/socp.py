@@ -44,6 +44,8 @@ STILL = 1e-6
 BETA_CAP_FACTOR = 1e4
 #: Candidate check points per interval (the interior of a uniform subdivision).
 DENSE = 8
+#: ... and at most this far apart (s of trajectory time), so coarse grids get more.
+DENSE_SPACING = 0.00625
 #: Intervals over which |sigma'| changes by more than this ratio start fully checked.
 REFINE_RATIO = 1.2
 #: Start constraint generation with the interval midpoints constrained too. Off:
@@ -60,8 +62,9 @@ class PathSamples:
     """The path and its limits on the grid: what the SOCP needs, nothing more.
 
     Beyond the nodes, the limits are imposed at *check points* inside the
-    intervals. Candidates are the ``DENSE - 1`` interior points of a uniform
-    subdivision of every interval, both of its ends (alpha jumps at nodes) and
+    intervals. Candidates are the interior points of a uniform subdivision of
+    every interval into ``DENSE`` parts (more on coarse grids, so they are at most
+    ``DENSE_SPACING`` apart), both of its ends (alpha jumps at nodes) and
     the path's own breakpoints; ``active`` says which are constrained. The nodes
     (both ends of every interval) and breakpoints always are (the midpoints too
     with :data:`INITIAL_MIDPOINTS`), and every candidate of an interval over
@@ -128,7 +131,8 @@ def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
     n = len(tau) - 1
     h = np.diff(tau)
     _, d1, d2 = trajectory.evaluate(tau)
-    inner = np.arange(1, DENSE) / DENSE
+    parts = max(DENSE, int(np.ceil(float(h.max()) / DENSE_SPACING)))
+    inner = np.arange(1, parts) / parts
     # The path's own breakpoints are candidates too: its acceleration peaks there.
     bp = trajectory.breakpoints
     bp_idx = np.clip(np.searchsorted(tau, bp, side="right") - 1, 0, n - 1)
