@@ -4,6 +4,8 @@
 * ``rota-companion check-config FILE``: validate a configuration and print it.
 * ``rota-companion demo [--out DIR] [--seed N]``: a simulated flight through a
   forest (the README's main job): no PX4 install, no Zenoh router needed.
+* ``rota-companion bench-stream [--out DIR]``: setpoint-stream jitter at 50 Hz
+  while 30 m, dtau = 0.01 s re-times run (``docs/benchmarks.md``).
 
 Exit status: 0 success, 2 bad configuration, 1 other failure.
 """
@@ -77,6 +79,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if summary["reached_goal"] and not summary["collisions"] else 1
 
 
+def cmd_bench_stream(args: argparse.Namespace) -> int:
+    from companion.bench_stream import run_bench_stream
+
+    setup_logging("WARNING")
+    run_bench_stream(args.out, args.rounds)
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rota-companion", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -92,6 +102,10 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=2.0, help="speed limit, m/s (default 2)")
     p.add_argument("-v", "--verbose", action="store_true", help="log the service's events")
     p.set_defaults(func=cmd_demo)
+    p = sub.add_parser("bench-stream", help="setpoint jitter while long re-times run")
+    p.add_argument("--out", default=None, help="also write stream.json here")
+    p.add_argument("--rounds", type=int, default=8, help="re-times to run (default 8)")
+    p.set_defaults(func=cmd_bench_stream)
     return parser
 
 

@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
+import sys
 import time
 from collections import deque
 from dataclasses import replace
@@ -33,13 +33,9 @@ from companion.config import Config, ConfigError, from_dict
 from companion.estimator import UncertaintyEstimator, evidence, tracking_std
 from companion.frames import heading_ned_deg
 from companion.plan import Brake, Command, Hold, Plan, blend_time, brake_along
-from companion.retimer import Retimer
+from companion.retimer import ReplanJob, Retimer
 from companion.uncertainty import ConfiguredUncertainty, UncertaintySource
-from rota.problem import RetimeInput
 from rota.result import FALLBACK, REJECTED
-from rota.robust import Safety
-from rota.schema import TrajectoryMessage, result_to_dict
-from rota.trajectory import Window
 from rota.voxelmap import VoxelMap
 
 log = logging.getLogger("rota.companion")
@@ -125,6 +121,9 @@ class Service:
 
     # ===================================================================== run
     async def run(self, stop: asyncio.Event) -> None:
+        # MAVSDK, Zenoh and the worker pool run Python threads too; hand the GIL
+        # over every 1 ms (default 5 ms) so the setpoint loop is not kept waiting.
+        sys.setswitchinterval(0.001)
         self._loop = asyncio.get_running_loop()
         self._open_zenoh()
         await self.retimer.start()
@@ -198,8 +197,11 @@ class Service:
         return callback
 
     def _put(self, name: str, obj: dict[str, Any]) -> None:
+        self._put_bytes(name, msgs.dumps(obj))
+
+    def _put_bytes(self, name: str, payload: bytes) -> None:
         try:
-            self._pub[name].put(msgs.dumps(obj))
+            self._pub[name].put(payload)
         except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
             log.warning("publishing %s failed: %s", name, exc)
 
@@ -218,11 +220,16 @@ class Service:
 
     def _on_map(self, sample: zenoh.Sample) -> None:
         try:
-            self.map = msgs.parse_map(sample.payload.to_bytes(), self.cfg)
+            vmap = msgs.parse_map(sample.payload.to_bytes(), self.cfg)
         except msgs.Rejected as exc:
             self._error("map", str(exc))
             return
-        log.info("map: %d occupied voxels at %.2f m", len(self.map), self.map.resolution)
+        asyncio.create_task(self._use_map(vmap))
+
+    async def _use_map(self, vmap: VoxelMap) -> None:
+        await self.retimer.set_map(vmap)
+        self.map = vmap
+        log.info("map: %d occupied voxels at %.2f m", len(vmap), vmap.resolution)
 
     def _on_command(self, query: zenoh.Query) -> None:
         name = str(query.key_expr).rsplit("/", 1)[-1]
@@ -451,34 +458,23 @@ class Service:
                 self._error("retime", f"{incoming.id}: {exc}; keeping the current command")
 
     async def _retime_and_stitch(self, incoming: msgs.Incoming) -> None:
+        """Replan in the worker: join the trajectory onto the commanded state at the
+        predicted takeover time, re-time it; then schedule the takeover."""
         cfg = self.cfg
         flying = self.streaming and self.state == State.OFFBOARD
-        now = time.monotonic()
-        t_take = now + self.solve_latency
+        t_take = time.monotonic() + self.solve_latency
         take = self._commanded(t_take) if flying else None
-        traj = incoming.trajectory
-        start_velocity = np.zeros(3)
-        if take is not None:
-            tau0 = _nearest_tau(traj, take.position, cfg.safety.stitch_tolerance_m)
-            gap = float(np.linalg.norm(traj.position(tau0)[0] - take.position))
-            if gap > cfg.safety.stitch_tolerance_m:
-                raise msgs.Rejected(
-                    f"trajectory {incoming.id!r}: starts {gap:.2f} m from the commanded "
-                    f"position (tolerance {cfg.safety.stitch_tolerance_m} m)")
-            if tau0 >= traj.domain[1] - 1e-6:
-                raise msgs.Rejected(f"trajectory {incoming.id!r}: the vehicle is already "
-                                    f"past its end")
-            if tau0 > traj.domain[0]:
-                traj = Window(base=traj, start=tau0)
-            start_velocity = _along_path(traj, take.velocity, incoming.id)
-        safety = None
-        if self.map is not None:
-            safety = Safety(map=self.map, uncertainty=self.uncertainty.model(),
-                            chance=cfg.chance_params(), braking=cfg.braking_params())
-        inp = RetimeInput(trajectory=traj, limits=cfg.rota_limits(),
-                          smoothness=cfg.limits.smoothness, dtau=cfg.limits.dtau,
-                          start_velocity=start_velocity, safety=safety)
-        result, seconds = await self.retimer.retime(inp, cfg.limits.max_solve_s)
+        job = ReplanJob(
+            id=incoming.id, stamp=incoming.stamp, trajectory=incoming.trajectory,
+            limits=cfg.rota_limits(), smoothness=cfg.limits.smoothness, dtau=cfg.limits.dtau,
+            uncertainty=self.uncertainty.model(), chance=cfg.chance_params(),
+            braking=cfg.braking_params(), stitch_tolerance=cfg.safety.stitch_tolerance_m,
+            take_position=None if take is None else take.position,
+            take_velocity=None if take is None else take.velocity)
+        out = await self.retimer.replan(job, cfg.limits.max_solve_s)
+        if out.rejected:
+            raise msgs.Rejected(f"trajectory {incoming.id!r}: {out.rejected}")
+        result, seconds = out.result, out.seconds
         self.solve_latency = 0.7 * self.solve_latency + 0.3 * (1.5 * seconds + 0.05)
         self.last_result_summary = {
             "id": incoming.id, "status": result.status, "message": result.message,
@@ -488,8 +484,7 @@ class Service:
             "braking_zones": [[round(a, 3), round(b, 3)]
                               for a, b in result.extras.get("intervals", ())],
         }
-        self._put("retimed", result_to_dict(result, TrajectoryMessage(
-            traj, id=incoming.id, frame="ENU", stamp=incoming.stamp)))
+        self._put_bytes("retimed", out.payload)
         for w in result.warnings:
             self._warn(f"{incoming.id}: {w}")
         if result.status == REJECTED:
@@ -500,7 +495,6 @@ class Service:
         if incoming is not self.latest or not (self.streaming and self.state == State.OFFBOARD):
             return  # superseded, or not flying: the result was published, nothing to fly
         if take is None:  # offboard began while we solved: start from the hold
-            take = self._commanded(time.monotonic())
             t_take = time.monotonic()
         self.next_plan = Plan(incoming.id, result, max(t_take, time.monotonic()))
 
@@ -728,54 +722,3 @@ class Service:
 
     def _event(self, message: str) -> None:
         log.info("%s", message)
-
-
-def _along_path(traj, velocity: np.ndarray, ident: str) -> np.ndarray:  # noqa: ANN001
-    """The commanded velocity's component along the new path's tangent at its start.
-
-    A replan never starts exactly on the commanded velocity; the cross-track
-    rest (up to 0.5 m/s or 30 % of the speed) is left to PX4's position loop.
-    More than that means the new path turns away sharply: rejected."""
-    _, d1, _ = traj.evaluate(traj.domain[0])
-    norm = float(np.linalg.norm(d1[0]))
-    speed = float(np.linalg.norm(velocity))
-    if norm <= 1e-9:
-        if speed > 0.3:
-            raise msgs.Rejected(f"trajectory {ident!r}: starts at rest while the vehicle moves "
-                                f"at {speed:.2f} m/s")
-        return np.zeros(3)
-    tangent = d1[0] / norm
-    along = max(float(velocity @ tangent), 0.0) * tangent
-    cross = float(np.linalg.norm(velocity - along))
-    if cross > max(0.5, 0.3 * speed):
-        raise msgs.Rejected(f"trajectory {ident!r}: its start direction differs from the "
-                            f"vehicle's velocity by {cross:.2f} m/s")
-    return along
-
-
-def _nearest_tau(traj, position: np.ndarray, tolerance: float) -> float:  # noqa: ANN001
-    """Trajectory time where the vehicle joins the path: the nearest point of the
-    first stretch of the path that comes within ``tolerance`` of ``position`` (so
-    a path that loops back past the vehicle later is not joined there), refined
-    by golden-section search; the global nearest point if none comes that close."""
-    t0, t1 = traj.domain
-    tau = np.linspace(t0, t1, 2001)
-    d = np.linalg.norm(traj.position(tau) - position, axis=1)
-    near = np.flatnonzero(d <= tolerance)
-    if len(near):
-        run_end = near[0] + int(np.argmax(np.diff(near) > 1)) + 1 if np.any(
-            np.diff(near) > 1) else near[-1] + 1
-        i = near[0] + int(np.argmin(d[near[0]:run_end]))
-    else:
-        i = int(np.argmin(d))
-    lo, hi = tau[max(i - 1, 0)], tau[min(i + 1, len(tau) - 1)]
-    g = (math.sqrt(5) - 1) / 2
-    for _ in range(40):
-        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
-        fa = np.linalg.norm(traj.position(a)[0] - position)
-        fb = np.linalg.norm(traj.position(b)[0] - position)
-        if fa < fb:
-            hi = b
-        else:
-            lo = a
-    return float(np.clip(0.5 * (lo + hi), t0, t1))

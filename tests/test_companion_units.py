@@ -19,7 +19,7 @@ from companion.frames import (
 )
 from companion.messages import Rejected, parse_map, parse_trajectory
 from companion.plan import Hold, Plan, blend_time, brake_along
-from companion.service import _nearest_tau
+from companion.stitch import nearest_tau
 from rota import Limits, RetimeInput, retime
 from rota.schema import TrajectoryMessage, trajectory_to_dict
 from rota.voxelmap import VoxelMap
@@ -184,5 +184,5 @@ def test_nearest_tau_joins_the_first_pass():
     from rota import SampledTrajectory
 
     traj = SampledTrajectory(t=t, p=np.column_stack([x, 0.05 * t, 0 * t]))
-    tau = _nearest_tau(traj, np.array([1.0, 0.0, 0.0]), tolerance=0.5)
+    tau = nearest_tau(traj, np.array([1.0, 0.0, 0.0]), tolerance=0.5)
     assert tau == pytest.approx(1.0, abs=0.05)
