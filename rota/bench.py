@@ -517,7 +517,7 @@ def to_markdown(report: dict[str, Any]) -> str:
               "|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"] + report.get("topp_rows", []):
         med = r["median_s"]
-        fastest = min(med["toppra"], med["copp_ra"], med["copp_socp"])
+        fastest = float(np.nanmin([med["toppra"], med["copp_ra"], med["copp_socp"]]))
         lines.append(
             f"| {r['trajectory']} | {r['dtau']:.4g} | {r['N']} | {_ms(med['topp_rota'])} | "
             f"{_ms(med['toppra'])} | {_ms(med['copp_ra'])} | {_ms(med['copp_socp'])} | "
