@@ -19,8 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.demo import GroundStation, demo_config, free_tcp_port
-from companion.service import Service
+from companion.demo import demo_config, free_tcp_port, running, take_off
 from rota.bench import load_data
 from rota.schema import TrajectoryMessage, trajectory_to_dict
 from rota.trajectory import BSplineTrajectory
@@ -41,17 +40,8 @@ def _window(sent: list[tuple[float, Any]], t0: float, t1: float) -> np.ndarray:
 async def _run(cfg, rounds: int) -> dict[str, Any]:  # noqa: ANN001
     trajs, vmap = load_data()
     traj = trajs["30m"]
-    service = Service(cfg)
-    stop = asyncio.Event()
-    task = asyncio.create_task(service.run(stop))
-    gs = GroundStation(cfg, cfg.zenoh.listen[0])
-    try:
-        await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
-        for name in ("arm", "takeoff"):
-            assert (await gs.command(name))["ok"]
-            await asyncio.sleep(0.5)
-        await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
-        await asyncio.sleep(1.0)
+    async with running(cfg) as (service, gs):
+        await take_off(gs)
         assert (await gs.command("start"))["ok"]
         await asyncio.sleep(1.0)
         here = np.asarray(gs.telemetry["position"])
@@ -85,10 +75,6 @@ async def _run(cfg, rounds: int) -> dict[str, Any]:  # noqa: ANN001
                 "busy_seconds": t_end - t_busy, "retimes": len(solves),
                 "median_solve_ms": float(np.median(solves) * 1e3) if solves else None,
                 "grid_nodes": int(np.ceil(traj.duration / cfg.limits.dtau)) + 1}
-    finally:
-        stop.set()
-        await task
-        gs.close()
 
 
 def run_bench_stream(out: str | None = None, rounds: int = 8) -> dict[str, Any]:

@@ -10,11 +10,13 @@ the way, and watches status. Nothing is mocked; nothing leaves 127.0.0.1.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import socket
 import tempfile
 import time
+from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -128,6 +130,37 @@ class GroundStation:
         self.session.close()
 
 
+@contextlib.asynccontextmanager
+async def running(cfg: Config) -> AsyncIterator[tuple[Service, GroundStation]]:
+    """The service running in this event loop, and a ground station talking to it."""
+    service = Service(cfg)
+    stop = asyncio.Event()
+    task = asyncio.create_task(service.run(stop))
+    gs = GroundStation(cfg, cfg.zenoh.listen[0])
+    try:
+        yield service, gs
+    finally:
+        stop.set()
+        await task
+        gs.close()
+
+
+async def take_off(gs: GroundStation, world: World | None = None,
+                   home: np.ndarray | None = None) -> None:
+    """Wait for a healthy vehicle, publish the world's map, arm, take off, settle."""
+    await gs.wait_for(lambda s: s["state"] == "ready", 40, "the vehicle to be ready")
+    if world is not None and home is not None:
+        gs.publish("map", map_message(world, home))
+        await gs.wait_for(lambda s: s.get("map_voxels"), 10, "the map to arrive")
+    for name in ("arm", "takeoff"):
+        reply = await gs.command(name)
+        if not reply["ok"]:
+            raise RuntimeError(f"{name}: {reply['message']}")
+        await asyncio.sleep(0.5)
+    await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
+    await asyncio.sleep(1.0)
+
+
 def to_local(traj: BSplineTrajectory, home: np.ndarray) -> BSplineTrajectory:
     """World ENU -> the vehicle's local ENU frame (origin at home)."""
     return BSplineTrajectory(control_points=traj.control_points - home, degree=traj.degree,
@@ -146,16 +179,7 @@ def map_message(world: World, home: np.ndarray, resolution: float = 0.1) -> dict
 async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: float,
                       a_max: float, replans: int, timeout_s: float = 120.0) -> dict[str, Any]:
     """Take off, fly the planner's trajectory with ``replans`` replans on the way."""
-    await gs.wait_for(lambda s: s["state"] == "ready", 40, "the vehicle to be ready")
-    gs.publish("map", map_message(world, home))
-    await gs.wait_for(lambda s: s.get("map_voxels"), 10, "the map to arrive")
-    for name in ("arm", "takeoff"):
-        reply = await gs.command(name)
-        if not reply["ok"]:
-            raise RuntimeError(f"{name}: {reply['message']}")
-        await asyncio.sleep(0.5)
-    await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
-    await asyncio.sleep(1.0)
+    await take_off(gs, world, home)
     first = plan(world, v_max=speed, a_max=a_max)
     gs.publish("trajectory", trajectory_message(to_local(first, home), "plan-0"))
     reply = await gs.command("start")
@@ -171,7 +195,9 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
         sp = gs.telemetry["setpoint"]
         p = np.asarray(sp["position"]) + home
         v = np.asarray(sp["velocity"])
-        p = p + v * 0.3  # plan from where the vehicle will be when the new plan arrives
+        # Plan from the commanded state as it was (like EGO-Planner): the vehicle will be a
+        # little further along by the time the replan is re-timed, and the service joins
+        # the new path where the vehicle is then.
         new = plan(world, v_max=speed, a_max=a_max, start=p, start_velocity=v, strict=False)
         gs.publish("trajectory", trajectory_message(to_local(new, home), f"plan-{k}"))
         planned.append(new.duration)
@@ -187,11 +213,7 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
 
 async def _run(cfg: Config, world: World, home: np.ndarray, speed: float, replans: int,
                land: bool) -> dict[str, Any]:
-    service = Service(cfg)
-    stop = asyncio.Event()
-    task = asyncio.create_task(service.run(stop))
-    gs = GroundStation(cfg, cfg.zenoh.listen[0])
-    try:
+    async with running(cfg) as (service, gs):
         result = await fly_to_goal(gs, world, home, speed, min(cfg.limits.a_max), replans)
         if land:
             await gs.command("land")
@@ -199,10 +221,6 @@ async def _run(cfg: Config, world: World, home: np.ndarray, speed: float, replan
         result.update(retimed=gs.retimed, jitter_p99_ms=service.jitter_p99_ms(),
                       last_status=gs.status)
         return result
-    finally:
-        stop.set()
-        await task
-        gs.close()
 
 
 def closest_approach(world: World, report: SimReport) -> float:

@@ -245,10 +245,7 @@ class Service:
         except AutopilotError as exc:
             self._error(f"command {name}", str(exc))
             payload = msgs.reply(name, False, str(exc), state=self.state.value)
-        try:
-            query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
-        finally:
-            query.drop()
+        _reply(query, payload)
 
     def _on_config(self, query: zenoh.Query) -> None:
         ok, message = True, ""
@@ -275,10 +272,7 @@ class Service:
                 self._error("config", message)
         payload = msgs.dumps(msgs.envelope(msgs.CONFIG, ok=ok, message=message,
                                            config=self.cfg.to_dict()))
-        try:
-            query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
-        finally:
-            query.drop()
+        _reply(query, payload)
 
     def _on_estimator(self, query: zenoh.Query) -> None:
         """Read (no payload), or ``{"reset": true}``, ``{"freeze": bool}``,
@@ -311,10 +305,7 @@ class Service:
         body = est.describe() if est is not None else None
         payload = msgs.dumps(msgs.envelope("rota/estimator", ok=ok, message=message,
                                            estimator=body))
-        try:
-            query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
-        finally:
-            query.drop()
+        _reply(query, payload)
 
     async def _learn(self) -> None:
         """5 Hz: feed the estimator while flying in offboard; save every 10 s."""
@@ -722,3 +713,11 @@ class Service:
 
     def _event(self, message: str) -> None:
         log.info("%s", message)
+
+
+def _reply(query: zenoh.Query, payload: bytes) -> None:
+    """Answer a Zenoh query with JSON and finalise it."""
+    try:
+        query.reply(query.key_expr, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+    finally:
+        query.drop()

@@ -256,7 +256,11 @@ class _ToppraPath:
         return P()
 
 
-def run_toppra(traj: Trajectory, tau: np.ndarray) -> tuple[float, np.ndarray]:
+def run_toppra(traj: Trajectory, tau: np.ndarray, v_max: float = V_MAX,
+               a_max: np.ndarray | float = A_MAX) -> tuple[float, np.ndarray]:
+    """toppra (seidel) on ``traj`` over the grid ``tau``: ``(seconds, beta)``. The
+    speed limit on the norm becomes the equivalent per-axis limit varying along the
+    path, ``|q_k' sdot| <= v |q_k'| / |q'|``, i.e. ``sdot <= v / |q'|``."""
     import toppra.algorithm as ta
     import toppra.constraint as tc
 
@@ -265,11 +269,11 @@ def run_toppra(traj: Trajectory, tau: np.ndarray) -> tuple[float, np.ndarray]:
 
     def vlim(s):  # the speed norm as an equivalent varying per-axis limit
         d = path(s, 1)
-        bound = np.maximum(V_MAX * np.abs(d) / max(np.linalg.norm(d), 1e-12), 1e-9)
+        bound = np.maximum(v_max * np.abs(d) / max(np.linalg.norm(d), 1e-12), 1e-9)
         return np.column_stack([-bound, bound])
 
     cons = [tc.JointVelocityConstraintVarying(vlim),
-            tc.JointAccelerationConstraint(np.full(3, A_MAX))]
+            tc.JointAccelerationConstraint(np.broadcast_to(np.asarray(a_max, float), (3,)))]
     algo = ta.TOPPRA(cons, path, gridpoints=tau, solver_wrapper="seidel")
     sd = algo.compute_parameterization(0.0, 0.0)[1]
     secs = time.perf_counter() - t0

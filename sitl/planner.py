@@ -586,7 +586,13 @@ def _speed_profile(path: _Path, v_start: float,
     for k in range(len(ds) - 1, -1, -1):  # backward: brake
         v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + two_a_ds[k]))
     v[0] = v_start  # an unstoppable start velocity is kept; the limits are then exceeded
-    t = np.concatenate([[0.0], np.cumsum(2.0 * ds / (v[:-1] + v[1:]))])
+    # A piece between two stops (both speeds 0) is crossed by accelerating to its
+    # middle and braking again: 2 sqrt(ds / a); elsewhere constant acceleration.
+    vsum = v[:-1] + v[1:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt = np.where(vsum > 0, 2.0 * ds / np.where(vsum > 0, vsum, 1.0),
+                      2.0 * np.sqrt(ds / np.maximum(a_piece, 1e-9)))
+    t = np.concatenate([[0.0], np.cumsum(dt)])
     return s, v, t
 
 
@@ -594,9 +600,18 @@ def _sample_profile(s: FloatArray, v: FloatArray, t: FloatArray, times: FloatArr
     """Arc length at ``times`` with constant acceleration between profile nodes."""
     k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(s) - 2)
     ds = s[k + 1] - s[k]
+    span = t[k + 1] - t[k]
     acc = (v[k + 1] ** 2 - v[k] ** 2) / (2.0 * ds)
-    dt = np.clip(times - t[k], 0.0, t[k + 1] - t[k])
-    return np.minimum(s[k] + v[k] * dt + 0.5 * acc * dt**2, s[k + 1])
+    dt = np.clip(times - t[k], 0.0, span)
+    out = np.minimum(s[k] + v[k] * dt + 0.5 * acc * dt**2, s[k + 1])
+    # between two stops: accelerate to the middle, brake to the next stop
+    still = (v[k] + v[k + 1]) <= 0
+    if still.any():
+        a2 = 4.0 * ds / np.where(span > 0, span, 1.0) ** 2
+        rise = s[k] + 0.5 * a2 * dt**2
+        fall = s[k + 1] - 0.5 * a2 * (span - dt) ** 2
+        out = np.where(still, np.where(dt <= 0.5 * span, rise, fall), out)
+    return out
 
 
 def _fit_bspline(path: _Path, v0: FloatArray, v_max: float, a_max: float,

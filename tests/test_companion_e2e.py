@@ -20,11 +20,11 @@ from companion.demo import (
     demo_config,
     fly_to_goal,
     free_tcp_port,
-    map_message,
+    running,
+    take_off,
     to_local,
     trajectory_message,
 )
-from companion.service import Service
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import plan
 from sitl.process import SimProcess
@@ -43,31 +43,12 @@ def run_flight(scenario, seed: int = 3, world_name: str = "forest", **overrides)
         cfg = demo_config(mav, zport, SPEED, state, **overrides)
 
         async def main():
-            service = Service(cfg)
-            stop = asyncio.Event()
-            task = asyncio.create_task(service.run(stop))
-            gs = GroundStation(cfg, cfg.zenoh.listen[0])
-            try:
+            async with running(cfg) as (service, gs):
                 return await scenario(gs, service, sim, world)
-            finally:
-                stop.set()
-                await task
-                gs.close()
 
         with SimProcess(port=mav, world=world_name, seed=seed) as sim:
             out = asyncio.run(main())
     return out, sim.report
-
-
-async def take_off(gs, world, home):
-    await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
-    gs.publish("map", map_message(world, home))
-    await gs.wait_for(lambda s: s.get("map_voxels"), 10, "map")
-    for name in ("arm", "takeoff"):
-        assert (await gs.command(name))["ok"]
-        await asyncio.sleep(0.5)
-    await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
-    await asyncio.sleep(1.0)
 
 
 def test_three_replans_reach_the_goal_without_collision_or_jumps():

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from companion.demo import (
-    GroundStation,
     demo_config,
     free_tcp_port,
     map_message,
+    running,
+    take_off,
     to_local,
     trajectory_message,
 )
@@ -38,20 +39,9 @@ def test_estimator_learns_in_flight_slows_braking_zones_and_survives_restart():
         cfg = demo_config(mav, zport, 2.0, state)
 
         async def fly(sim):
-            service = Service(cfg)
-            stop = asyncio.Event()
-            task = asyncio.create_task(service.run(stop))
-            gs = GroundStation(cfg, cfg.zenoh.listen[0])
             home = sim.home_enu
-            try:
-                await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
-                gs.publish("map", map_message(world, home))
-                await gs.wait_for(lambda s: s.get("map_voxels"), 10, "map")
-                for name in ("arm", "takeoff"):
-                    assert (await gs.command(name))["ok"]
-                    await asyncio.sleep(0.5)
-                await gs.wait_for(lambda s: s["state"] == "airborne", 30, "takeoff")
-                await asyncio.sleep(1.0)
+            async with running(cfg) as (_, gs):
+                await take_off(gs, world, home)
                 ends = [np.asarray(world.start), np.asarray(world.goal)]
                 first = None
                 for k in range(4):  # there and back, twice
@@ -65,10 +55,6 @@ def test_estimator_learns_in_flight_slows_braking_zones_and_survives_restart():
                                       f"leg {k}")
                     await gs.wait_for(lambda s: s.get("command") == "hold", 60, "leg end")
                 return gs.status["uncertainty"], first
-            finally:
-                stop.set()
-                await task
-                gs.close()
 
         with SimProcess(port=mav, world="forest", seed=5,
                         estimation={"slope_s": TRUE_M, "offset_m": TRUE_B}) as sim:

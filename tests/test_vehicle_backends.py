@@ -11,8 +11,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from companion.demo import GroundStation, demo_config, free_tcp_port, trajectory_message
-from companion.service import Service
+from companion.demo import demo_config, free_tcp_port, running, take_off, trajectory_message
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import straight_line
 from sitl.process import SimProcess
@@ -42,17 +41,9 @@ def test_service_flies_10_m_and_lands(backend):
                           stream={"takeoff_altitude_m": 2.0})
 
         async def main():
-            service = Service(cfg)
-            stop = asyncio.Event()
-            task = asyncio.create_task(service.run(stop))
-            gs = GroundStation(cfg, cfg.zenoh.listen[0])
-            try:
-                await gs.wait_for(lambda s: s["state"] == "ready", 60, "health ok")
-                for name in ("arm", "takeoff"):
-                    assert (await gs.command(name))["ok"]
-                    await asyncio.sleep(0.5)
-                await gs.wait_for(lambda s: s["state"] == "airborne", 40, "takeoff")
-                await asyncio.sleep(2.0)
+            async with running(cfg) as (_, gs):
+                await take_off(gs)
+                await asyncio.sleep(1.0)
                 p0 = np.asarray(gs.telemetry["position"])
                 traj = straight_line(p0, p0 + [10.0, 0.0, 0.0], v_max=2.0, a_max=1.5)
                 gs.publish("trajectory", trajectory_message(traj, "ten"))
@@ -65,10 +56,6 @@ def test_service_flies_10_m_and_lands(backend):
                 await gs.wait_for(lambda s: s["state"] == "ready" and not s["armed"], 60,
                                   "landed and disarmed")
                 return p0, p1
-            finally:
-                stop.set()
-                await task
-                gs.close()
 
         p0, p1 = asyncio.run(main())
     assert np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])) < 0.5
