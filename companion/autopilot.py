@@ -60,6 +60,7 @@ class Telemetry:
     landed_state: str = "UNKNOWN"
     healthy: bool = False
     position_std: FloatArray | None = None  # PX4's position std per axis (ENU), if reported
+    yaw_ned_deg: float | None = None  # heading (NED yaw: from north, clockwise)
     position_time: float = 0.0
     seen: dict[str, float] = field(default_factory=dict)
 
@@ -98,7 +99,8 @@ class Autopilot:
                            ("mode", self._tel.subscribe_flight_mode()),
                            ("landed", self._tel.subscribe_landed_state()),
                            ("health", self._tel.subscribe_health_all_ok()),
-                           ("odometry", self._tel.subscribe_odometry()))]
+                           ("odometry", self._tel.subscribe_odometry()),
+                           ("attitude", self._tel.subscribe_attitude_euler()))]
 
     async def _watch(self, name: str, gen) -> None:  # noqa: ANN001
         t = self.telemetry
@@ -118,6 +120,8 @@ class Autopilot:
                 t.landed_state = _name(item)
             elif name == "health":
                 t.healthy = bool(item)
+            elif name == "attitude":
+                t.yaw_ned_deg = float(item.yaw_deg)
             elif name == "odometry":
                 # pose covariance: upper-right triangle of the 6x6 matrix, row-major;
                 # x, y, z variances at 0, 6, 11 (NaN in the first entry: unknown)

@@ -15,6 +15,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
 import sys
 import time
 from collections import deque
@@ -411,20 +412,23 @@ class Service:
         await self.autopilot.stop_stream()
 
     async def _auto_start(self) -> None:
+        """Arm, take off and start, each step once the telemetry confirms the last."""
         try:
             await self.cmd_arm()
+            await self._wait_until(lambda: self.state == State.ARMED, 5.0, "armed")
             await self.cmd_takeoff()
-            for _ in range(200):
-                await asyncio.sleep(0.1)
-                if self.state == State.AIRBORNE and self._at_takeoff_altitude():
-                    break
+            # AIRBORNE: in the air and PX4's takeoff finished (it switched to Hold)
+            await self._wait_until(lambda: self.state == State.AIRBORNE, 30.0, "takeoff")
             await self.cmd_start()
         except AutopilotError as exc:
             self._error("auto-start", str(exc))
 
-    def _at_takeoff_altitude(self) -> bool:
-        pos = self.autopilot.telemetry.position
-        return pos is not None and pos[2] >= 0.9 * self.cfg.stream.takeoff_altitude_m
+    async def _wait_until(self, predicate, timeout_s: float, what: str) -> None:  # noqa: ANN001
+        end = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > end:
+                raise AutopilotError(f"timed out waiting for {what} ({self.state.value})")
+            await asyncio.sleep(0.05)
 
     # ========================================================= replanning
     def _commanded(self, now: float) -> Command:
@@ -554,7 +558,9 @@ class Service:
             self.yaw_ned = heading_ned_deg(cmd.velocity)
 
     def _vehicle_yaw(self) -> float:
-        return self.yaw_ned
+        """The vehicle's heading now (NED yaw, deg): the yaw to hold at first."""
+        yaw = self.autopilot.telemetry.yaw_ned_deg
+        return self.yaw_ned if yaw is None or not math.isfinite(yaw) else yaw
 
     # ====================================================== monitoring
     async def _connection(self) -> None:

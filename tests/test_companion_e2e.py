@@ -4,8 +4,11 @@ loopback) against the ``sitl`` vehicle in its own process (issue #6)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -138,10 +141,15 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
         assert (await gs.command("start"))["ok"]
         await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "progress")
 
+    # systemd's notification socket, to see READY / WATCHDOG / STOPPING arrive
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(tmp_path / "notify"))
+    notify.settimeout(0.2)
+    env = dict(os.environ, NOTIFY_SOCKET=str(tmp_path / "notify"))
     with SimProcess(port=mav, world="forest", seed=4) as sim:
         proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config",
                                  str(cfg_file)], stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True)
+                                stderr=subprocess.STDOUT, text=True, env=env)
         gs = GroundStation(cfg, f"tcp/127.0.0.1:{zport}")
         try:
             asyncio.run(scenario(gs, sim))
@@ -153,6 +161,13 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
             gs.close()
             if proc.poll() is None:
                 proc.kill()
+    notes = set()
+    with contextlib.suppress(TimeoutError):
+        while True:
+            notes.update(notify.recv(4096).decode().split("\n"))
+    notify.close()
+    assert {"READY=1", "WATCHDOG=1", "STOPPING=1"} <= notes, notes
+    assert any(n.startswith("STATUS=offboard") for n in notes)
     assert proc.returncode == 0, out
     assert "PX4 Hold" in out
     assert state["mode"] == "AUTO_LOITER" and state["armed"]
@@ -177,3 +192,49 @@ def test_closest_approach_helper_measures_clearance():
     expected = min(float(world.signed_distance(np.array([[0.0, 0.0, 1.0], world.start])).min())
                    - world.robot_radius, np.inf)
     assert clearance == pytest.approx(expected)
+
+
+def test_link_loss_stops_the_stream_and_never_resumes_without_start():
+    async def scenario(gs, service, sim, world):
+        home = sim.home_enu
+        await take_off(gs, world, home)
+        traj = plan(world, v_max=SPEED, a_max=2.0)
+        gs.publish("trajectory", trajectory_message(to_local(traj, home), "t"))
+        assert (await gs.command("start"))["ok"]
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.2, 30, "progress")
+        sim.block_link(True)
+        await gs.wait_for(lambda s: s["state"] == "link_lost", 10, "link loss detected")
+        lost = dict(gs.status)
+        await asyncio.sleep(2.0)
+        sim.block_link(False)
+        await gs.wait_for(lambda s: s["state"] not in ("link_lost",), 15, "reconnection")
+        await asyncio.sleep(2.0)
+        after = dict(gs.status)
+        return lost, after, service.streaming, sim.state()
+
+    (lost, after, streaming, state), report = run_flight(scenario)
+    assert "link lost" in lost["last_error"]["message"] and not lost["streaming"]
+    assert not streaming and not after["streaming"] and after["trajectory_id"] is None
+    assert after["command"] is None  # nothing resumed without a new start
+    assert state["mode"] != "OFFBOARD"  # PX4 ran its offboard-loss failsafe
+    assert not report.collisions
+
+
+def test_auto_start_flies_without_commands_and_tracking_error_brakes():
+    """With stream.auto_start the first trajectory arms, takes off and starts; an
+    absurdly tight tracking threshold then makes the service brake to a hold."""
+
+    async def scenario(gs, service, sim, world):
+        home = sim.home_enu
+        await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
+        traj = plan(world, v_max=SPEED, a_max=2.0)
+        gs.publish("trajectory", trajectory_message(to_local(traj, home), "auto"))
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "auto", 40, "auto start")
+        await gs.wait_for(lambda s: s.get("hold_reason") and "tracking error" in
+                          s["hold_reason"], 30, "the tracking-error hold")
+        return [s["state"] for s in gs.statuses]
+
+    states, report = run_flight(scenario, stream={"auto_start": True},
+                                safety={"max_tracking_error_m": 0.05})
+    assert "prestream" in states and states.index("prestream") < states.index("offboard")
+    assert not report.collisions
