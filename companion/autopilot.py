@@ -101,6 +101,20 @@ class Autopilot:
                            ("health", self._tel.subscribe_health_all_ok()),
                            ("odometry", self._tel.subscribe_odometry()),
                            ("attitude", self._tel.subscribe_attitude_euler()))]
+        self._tasks.append(asyncio.create_task(self._poll(), name="telemetry-poll"))
+
+    async def _poll(self) -> None:
+        """Once a second, read the slow-changing states directly: a subscription
+        may only report changes, and one made after the first heartbeat would
+        otherwise wait for the next change."""
+        t = self.telemetry
+        while True:
+            with contextlib.suppress(Exception):
+                t.flight_mode = _name(await self._tel.flight_mode())
+                t.armed = bool(await self._tel.armed())
+                t.landed_state = _name(await self._tel.landed_state())
+                t.healthy = bool(await self._tel.health_all_ok())
+            await asyncio.sleep(1.0)
 
     async def _watch(self, name: str, gen) -> None:  # noqa: ANN001
         t = self.telemetry

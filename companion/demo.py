@@ -148,7 +148,7 @@ async def running(cfg: Config) -> AsyncIterator[tuple[Service, GroundStation]]:
 async def take_off(gs: GroundStation, world: World | None = None,
                    home: np.ndarray | None = None) -> None:
     """Wait for a healthy vehicle, publish the world's map, arm, take off, settle."""
-    await gs.wait_for(lambda s: s["state"] == "ready", 40, "the vehicle to be ready")
+    await gs.wait_for(lambda s: s["state"] == "ready", 60, "the vehicle to be ready")
     if world is not None and home is not None:
         gs.publish("map", map_message(world, home))
         await gs.wait_for(lambda s: s.get("map_voxels"), 10, "the map to arrive")

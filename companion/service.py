@@ -60,6 +60,27 @@ class State(StrEnum):
     STOPPING = "stopping"
 
 
+class Notifier:
+    """sd_notify (READY, STATUS, WATCHDOG, STOPPING) that can never block the
+    event loop: the socket is non-blocking (a busy systemd drops a message rather
+    than stalling the setpoint stream) and the watchdog is petted at most 4 Hz."""
+
+    def __init__(self) -> None:
+        self._sd = sdnotify.SystemdNotifier()
+        if self._sd.socket is not None:
+            self._sd.socket.setblocking(False)
+        self._last_watchdog = 0.0
+
+    def notify(self, state: str) -> None:
+        self._sd.notify(state)  # sdnotify swallows errors (e.g. BlockingIOError)
+
+    def watchdog(self) -> None:
+        now = time.monotonic()
+        if now - self._last_watchdog >= 0.25:
+            self._last_watchdog = now
+            self.notify("WATCHDOG=1")
+
+
 def zenoh_config(cfg: Config) -> zenoh.Config:
     """The Zenoh configuration: a file if given, else the embedded loopback default
     (peer mode, listening on the configured endpoints, no multicast scouting, so
@@ -113,7 +134,7 @@ class Service:
         self._last_sent = Command(np.zeros(3))
         self._offboard_seen = False
         self.session: zenoh.Session | None = None
-        self.notifier = sdnotify.SystemdNotifier()
+        self.notifier = Notifier()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._replan = asyncio.Event()
         self._zenoh_objs: list[Any] = []
@@ -527,7 +548,7 @@ class Service:
             if delay < -5 * period:  # fell far behind (suspended?): resynchronise
                 deadline = loop.time()
             await asyncio.sleep(max(delay, 0.0))
-            self.notifier.notify("WATCHDOG=1")
+            self.notifier.watchdog()
             if not self.streaming:
                 continue
             now = time.monotonic()

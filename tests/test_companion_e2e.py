@@ -12,6 +12,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
@@ -54,6 +55,18 @@ def run_flight(scenario, seed: int = 3, world_name: str = "forest", **overrides)
     return out, sim.report
 
 
+async def start_flight(gs, sim, world, ident: str, progress: float = 0.0):
+    """Take off, publish the planner's trajectory, start; wait for ``progress``."""
+    home = sim.home_enu
+    await take_off(gs, world, home)
+    traj = plan(world, v_max=SPEED, a_max=2.0)
+    gs.publish("trajectory", trajectory_message(to_local(traj, home), ident))
+    assert (await gs.command("start"))["ok"]
+    if progress:
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > progress, 30, "progress")
+    return traj
+
+
 def test_three_replans_reach_the_goal_without_collision_or_jumps():
     async def scenario(gs, service, sim, world):
         result = await fly_to_goal(gs, world, sim.home_enu, SPEED, 2.0, replans=3)
@@ -79,11 +92,7 @@ def test_three_replans_reach_the_goal_without_collision_or_jumps():
 def test_malformed_trajectory_mid_flight_is_rejected_and_flight_continues():
     async def scenario(gs, service, sim, world):
         home = sim.home_enu
-        await take_off(gs, world, home)
-        traj = plan(world, v_max=SPEED, a_max=2.0)
-        gs.publish("trajectory", trajectory_message(to_local(traj, home), "good"))
-        assert (await gs.command("start"))["ok"]
-        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "progress")
+        traj = await start_flight(gs, sim, world, "good", 0.3)
         bad = trajectory_message(to_local(traj, home), "bad")
         bad["control_points"][4][1] = "NaN"
         gs.publish("trajectory", bad)
@@ -105,11 +114,7 @@ def test_malformed_trajectory_mid_flight_is_rejected_and_flight_continues():
 
 def test_planner_silence_ends_in_a_hold():
     async def scenario(gs, service, sim, world):
-        home = sim.home_enu
-        await take_off(gs, world, home)
-        traj = plan(world, v_max=SPEED, a_max=2.0)
-        gs.publish("trajectory", trajectory_message(to_local(traj, home), "only"))
-        assert (await gs.command("start"))["ok"]
+        await start_flight(gs, sim, world, "only")
         await gs.wait_for(lambda s: s.get("hold_reason") and "no trajectory" in
                           s["hold_reason"], 20, "the planner-silence hold")
         t_hold = time.monotonic()
@@ -134,17 +139,22 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
     cfg_file.write_text(_toml(cfg))
 
     async def scenario(gs, sim):
-        home = sim.home_enu
-        await take_off(gs, world, home)
-        traj = plan(world, v_max=SPEED, a_max=2.0)
-        gs.publish("trajectory", trajectory_message(to_local(traj, home), "t"))
-        assert (await gs.command("start"))["ok"]
-        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "progress")
+        await start_flight(gs, sim, world, "t", 0.3)
 
     # systemd's notification socket, to see READY / WATCHDOG / STOPPING arrive
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     notify.bind(str(tmp_path / "notify"))
     notify.settimeout(0.2)
+    notes: set[str] = set()
+    done = threading.Event()
+
+    def listen() -> None:  # like systemd: read the socket all the time
+        while not done.is_set():
+            with contextlib.suppress(TimeoutError):
+                notes.update(notify.recv(4096).decode().split("\n"))
+
+    listener = threading.Thread(target=listen, daemon=True)
+    listener.start()
     env = dict(os.environ, NOTIFY_SOCKET=str(tmp_path / "notify"))
     with SimProcess(port=mav, world="forest", seed=4) as sim:
         proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config",
@@ -161,10 +171,8 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
             gs.close()
             if proc.poll() is None:
                 proc.kill()
-    notes = set()
-    with contextlib.suppress(TimeoutError):
-        while True:
-            notes.update(notify.recv(4096).decode().split("\n"))
+    done.set()
+    listener.join()
     notify.close()
     assert {"READY=1", "WATCHDOG=1", "STOPPING=1"} <= notes, notes
     assert any(n.startswith("STATUS=offboard") for n in notes)
@@ -196,12 +204,7 @@ def test_closest_approach_helper_measures_clearance():
 
 def test_link_loss_stops_the_stream_and_never_resumes_without_start():
     async def scenario(gs, service, sim, world):
-        home = sim.home_enu
-        await take_off(gs, world, home)
-        traj = plan(world, v_max=SPEED, a_max=2.0)
-        gs.publish("trajectory", trajectory_message(to_local(traj, home), "t"))
-        assert (await gs.command("start"))["ok"]
-        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.2, 30, "progress")
+        await start_flight(gs, sim, world, "t", 0.2)
         sim.block_link(True)
         await gs.wait_for(lambda s: s["state"] == "link_lost", 10, "link loss detected")
         lost = dict(gs.status)

@@ -186,3 +186,21 @@ def test_nearest_tau_joins_the_first_pass():
     traj = SampledTrajectory(t=t, p=np.column_stack([x, 0.05 * t, 0 * t]))
     tau = nearest_tau(traj, np.array([1.0, 0.0, 0.0]), tolerance=0.5)
     assert tau == pytest.approx(1.0, abs=0.05)
+
+
+def test_sd_notify_never_blocks_when_nobody_reads(tmp_path, monkeypatch):
+    """A full notification socket (a hung systemd) must not stall the service."""
+    import socket
+    import time as _time
+
+    from companion.service import Notifier
+
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(tmp_path / "n"))  # bound, never read
+    monkeypatch.setenv("NOTIFY_SOCKET", str(tmp_path / "n"))
+    notifier = Notifier()
+    start = _time.monotonic()
+    for _ in range(5000):
+        notifier.notify("STATUS=x" * 50)
+    assert _time.monotonic() - start < 2.0
+    sock.close()
