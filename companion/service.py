@@ -140,6 +140,8 @@ class Service:
         self._zenoh_objs: list[Any] = []
         self._tasks: list[asyncio.Task] = []
         self._pub: dict[str, Any] = {}
+        self._background: set[asyncio.Task] = set()
+        self._auto_starting = False
 
     # ===================================================================== run
     async def run(self, stop: asyncio.Event) -> None:
@@ -209,6 +211,12 @@ class Service:
             s.declare_queryable(k("estimator"), self._threadsafe(self._on_estimator)),
         ]
 
+    def _spawn(self, coro) -> None:  # noqa: ANN001
+        """Run ``coro`` as a task, keeping a reference until it is done."""
+        task = asyncio.create_task(coro)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
     def _threadsafe(self, handler):  # noqa: ANN001, ANN202
         """Zenoh calls back on its own threads: hop onto the event loop."""
         loop = self._loop
@@ -237,8 +245,8 @@ class Service:
         self.latest = incoming
         self.last_trajectory_time = time.monotonic()
         self._replan.set()
-        if self.cfg.stream.auto_start and self.state == State.READY:
-            asyncio.create_task(self._auto_start())
+        if self.cfg.stream.auto_start and self.state == State.READY and not self._auto_starting:
+            self._spawn(self._auto_start())
 
     def _on_map(self, sample: zenoh.Sample) -> None:
         try:
@@ -246,7 +254,7 @@ class Service:
         except msgs.Rejected as exc:
             self._error("map", str(exc))
             return
-        asyncio.create_task(self._use_map(vmap))
+        self._spawn(self._use_map(vmap))
 
     async def _use_map(self, vmap: VoxelMap) -> None:
         await self.retimer.set_map(vmap)
@@ -255,7 +263,7 @@ class Service:
 
     def _on_command(self, query: zenoh.Query) -> None:
         name = str(query.key_expr).rsplit("/", 1)[-1]
-        asyncio.create_task(self._answer(query, name))
+        self._spawn(self._answer(query, name))
 
     async def _answer(self, query: zenoh.Query, name: str) -> None:
         try:
@@ -363,8 +371,9 @@ class Service:
         return "armed"
 
     async def cmd_disarm(self) -> str:
-        if self.autopilot.telemetry.landed_state not in ("ON_GROUND", "UNKNOWN"):
-            raise AutopilotError("refusing to disarm in the air")
+        if self.autopilot.telemetry.landed_state != "ON_GROUND":
+            raise AutopilotError("refusing to disarm: PX4 does not report the vehicle on the "
+                                 f"ground (landed state {self.autopilot.telemetry.landed_state})")
         await self.autopilot.disarm()
         return "disarmed"
 
@@ -434,6 +443,7 @@ class Service:
 
     async def _auto_start(self) -> None:
         """Arm, take off and start, each step once the telemetry confirms the last."""
+        self._auto_starting = True
         try:
             await self.cmd_arm()
             await self._wait_until(lambda: self.state == State.ARMED, 5.0, "armed")
@@ -443,6 +453,8 @@ class Service:
             await self.cmd_start()
         except AutopilotError as exc:
             self._error("auto-start", str(exc))
+        finally:
+            self._auto_starting = False
 
     async def _wait_until(self, predicate, timeout_s: float, what: str) -> None:  # noqa: ANN001
         end = time.monotonic() + timeout_s
@@ -615,7 +627,7 @@ class Service:
                 else:
                     self._error("mavlink", "link lost")
                 self.latest = None
-                asyncio.create_task(self._stop_stream())
+                self._spawn(self._stop_stream())
                 self.state = State.LINK_LOST
             return
         if self.state in (State.PRESTREAM, State.OFFBOARD):
@@ -624,7 +636,7 @@ class Service:
             if (self.state == State.OFFBOARD and tel.flight_mode != "OFFBOARD"
                     and self._offboard_seen):
                 self.latest = None
-                asyncio.create_task(self._stop_stream())
+                self._spawn(self._stop_stream())
                 self._error("px4", f"PX4 left offboard (now {tel.flight_mode}); stream "
                             "stopped, a new 'start' is needed")
                 self.state = State.AIRBORNE

@@ -45,7 +45,7 @@ BETA_CAP_FACTOR = 1e4
 #: Candidate check points per interval (the interior of a uniform subdivision).
 DENSE = 8
 #: ... and at most this far apart (s of trajectory time), so coarse grids get more.
-DENSE_SPACING = 0.00625
+DENSE_SPACING = 0.025
 #: Intervals over which |sigma'| changes by more than this ratio start fully checked.
 REFINE_RATIO = 1.2
 #: Start constraint generation with the interval midpoints constrained too. Off:
