@@ -50,7 +50,11 @@ class RetimeResult:
         trajectory: the input path.
         solver: what Clarabel reported (None when it was not called).
         speed_limits: the per-node speed limit that was imposed (m/s).
-        extras: additional products of the pipeline (for example braking zones).
+        extras: additional products of the pipeline. With a map: ``intervals``
+            (refined braking zones in trajectory time), ``braking_mask`` (per-node
+            braking points, Eq. 6), ``obstacle_distance`` and ``nearest_obstacle``
+            (per node), ``chance_limits`` (the chance-constraint speed limit of
+            every node, applied where ``braking_mask``); always ``solve_rounds``.
     """
 
     status: str

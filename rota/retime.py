@@ -58,7 +58,8 @@ def retime(inp: RetimeInput) -> RetimeResult:
         seen = assess(inp.trajectory, tau, inp.safety)
         vlim = np.minimum(vlim, seen.speed_limits)
         extras.update(intervals=seen.zones.intervals, braking_mask=seen.zones.mask,
-                      obstacle_distance=seen.zones.distance)
+                      obstacle_distance=seen.zones.distance,
+                      nearest_obstacle=seen.zones.nearest, chance_limits=seen.chance.limit)
         if seen.outside.any():
             i = int(np.argmax(seen.outside))
             warnings.append(f"the path leaves the map at tau={tau[i]:.2f} s; speed limited to "
