@@ -14,30 +14,9 @@ from numpy.typing import NDArray
 from rota.errors import InputError
 from rota.robust import Safety
 from rota.trajectory import Trajectory
+from rota.validate import positive, vector3
 
 FloatArray = NDArray[np.float64]
-
-
-def _positive(value: float, name: str) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(name, f"must be a number, got {value!r}") from None
-    if not np.isfinite(x) or x <= 0:
-        raise InputError(name, f"must be a positive finite number, got {value!r}")
-    return x
-
-
-def _vector3(value: object, name: str) -> FloatArray:
-    try:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(name, f"must be 3 numbers, got {value!r}") from None
-    if arr.shape != (3,):
-        raise InputError(name, f"must be 3 numbers (x, y, z), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(name, "must be finite (got NaN or inf)")
-    return arr
 
 
 @dataclass(frozen=True)
@@ -53,7 +32,7 @@ class Limits:
     a_max: float | tuple[float, float, float]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "v_max", _positive(self.v_max, "limits.v_max"))
+        object.__setattr__(self, "v_max", positive(self.v_max, "limits.v_max"))
         a = (
             np.broadcast_to(np.asarray(self.a_max, dtype=float), (3,))
             if np.ndim(self.a_max) == 0
@@ -63,7 +42,7 @@ class Limits:
             raise InputError(
                 "limits.a_max", f"must be one number or 3 (x, y, z), got {self.a_max!r}"
             )
-        vals = tuple(_positive(x, f"limits.a_max[{k}]") for k, x in enumerate(a))
+        vals = tuple(positive(x, f"limits.a_max[{k}]") for k, x in enumerate(a))
         object.__setattr__(self, "a_max", vals)
 
     @property
@@ -148,17 +127,17 @@ class RetimeInput:
         if not np.isfinite(lam) or lam < 0:
             raise InputError("smoothness", f"must be a finite number >= 0, got {self.smoothness!r}")
         object.__setattr__(self, "smoothness", lam)
-        dtau = _positive(self.dtau, "dtau")
+        dtau = positive(self.dtau, "dtau")
         if dtau > self.trajectory.duration:
             dtau = self.trajectory.duration
         object.__setattr__(self, "dtau", dtau)
-        object.__setattr__(self, "start_velocity", _vector3(self.start_velocity, "start_velocity"))
-        object.__setattr__(self, "end_velocity", _vector3(self.end_velocity, "end_velocity"))
+        object.__setattr__(self, "start_velocity", vector3(self.start_velocity, "start_velocity"))
+        object.__setattr__(self, "end_velocity", vector3(self.end_velocity, "end_velocity"))
         if self.safety is not None and not isinstance(self.safety, Safety):
             raise InputError("safety", f"must be a rota Safety, got {type(self.safety).__name__}")
         if self.start_acceleration is not None:
             object.__setattr__(
-                self, "start_acceleration", _vector3(self.start_acceleration, "start_acceleration")
+                self, "start_acceleration", vector3(self.start_acceleration, "start_acceleration")
             )
         if self.speed_limits is not None:
             lim = np.asarray(self.speed_limits, dtype=float)

@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from rota.errors import InputError
+from rota.validate import positive, vector3
 
 FloatArray = NDArray[np.float64]
 
@@ -79,28 +80,6 @@ def _points_array(value: ArrayLike, field: str, allow_empty: bool = True) -> Flo
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
         raise InputError(_index_name(field, idx), "must be finite")
-    return arr
-
-
-def _positive_finite(value: Any, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InputError(field, f"must be a number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v) or v <= 0.0:
-        raise InputError(field, f"must be positive and finite, got {v}")
-    return v
-
-
-def _vector3(value: ArrayLike, field: str) -> FloatArray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InputError(field, f"must be numeric ({exc})") from None
-    if arr.shape != (3,):
-        raise InputError(field, f"must have 3 components (x, y, z), got shape {arr.shape}")
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        raise InputError(f"{field}[{int(np.argmax(bad))}]", "must be finite")
     return arr
 
 
@@ -169,8 +148,8 @@ class VoxelMap:
     bounds: FloatArray | None = None
 
     def __post_init__(self) -> None:
-        res = _positive_finite(self.resolution, "resolution")
-        origin = _vector3(self.origin, "origin")
+        res = positive(self.resolution, "resolution")
+        origin = vector3(self.origin, "origin")
         centres = _points_array(self.occupied, "occupied")
         rel = (centres - origin) / res - 0.5
         idx = np.rint(rel)
@@ -215,8 +194,8 @@ class VoxelMap:
         cls, points: ArrayLike, resolution: float, origin: ArrayLike | None = None
     ) -> VoxelMap:
         """Bin a point cloud ``(n, 3)`` into unique occupied voxels (vectorised)."""
-        res = _positive_finite(resolution, "resolution")
-        org = np.zeros(3) if origin is None else _vector3(origin, "origin")
+        res = positive(resolution, "resolution")
+        org = np.zeros(3) if origin is None else vector3(origin, "origin")
         pts = _points_array(points, "points")
         idx = _unique_rows(np.floor((pts - org) / res).astype(np.int64).reshape(-1, 3))
         return cls._from_indices(res, idx, org)
@@ -363,7 +342,7 @@ class VoxelMap:
             raise InputError("version", f"unsupported version {d['version']!r} (expected 1)")
         if d["frame"] != MAP_FRAME:
             raise InputError("frame", f"must be {MAP_FRAME!r}, got {d['frame']!r}")
-        res = _positive_finite(d["resolution"], "resolution")
+        res = positive(d["resolution"], "resolution")
         origin = _json_numbers(d["origin"], "origin", (3,))
         occ = _json_numbers(d["occupied"], "occupied", None)
         bounds = None if d.get("bounds") is None else _json_numbers(d["bounds"], "bounds", (2, 3))

@@ -53,6 +53,7 @@ from scipy.sparse import csgraph
 
 from rota.errors import InputError
 from rota.trajectory import BSplineTrajectory
+from rota.validate import positive, vector3
 from sitl.world import World
 
 FloatArray = NDArray[np.float64]
@@ -142,14 +143,14 @@ def plan_detailed(
     strict: bool = True,
 ) -> PlanResult:
     """As :func:`plan`, returning a :class:`PlanResult` with diagnostics."""
-    v_max, a_max = _positive(v_max, "v_max"), _positive(a_max, "a_max")
-    resolution, knot_span = _positive(resolution, "resolution"), _positive(knot_span, "knot_span")
+    v_max, a_max = positive(v_max, "v_max"), positive(a_max, "a_max")
+    resolution, knot_span = positive(resolution, "resolution"), positive(knot_span, "knot_span")
     clearance = float(clearance)
     if not math.isfinite(clearance) or clearance < 0:
         raise InputError("clearance", f"must be a non-negative number, got {clearance!r}")
-    p0 = _point(world.start if start is None else start, "start")
-    p1 = _point(world.goal if goal is None else goal, "goal")
-    v0 = np.zeros(3) if start_velocity is None else _point(start_velocity, "start_velocity")
+    p0 = vector3(world.start if start is None else start, "start")
+    p1 = vector3(world.goal if goal is None else goal, "goal")
+    v0 = np.zeros(3) if start_velocity is None else vector3(start_velocity, "start_velocity")
     r = world.robot_radius
     for name, p in (("start", p0), ("goal", p1)):
         d = float(world.signed_distance(p[None])[0])
@@ -198,32 +199,15 @@ def straight_line(
 
     Trapezoidal (or triangular) speed profile along the line; no obstacle check.
     """
-    a, b = _point(p0, "p0"), _point(p1, "p1")
+    a, b = vector3(p0, "p0"), vector3(p1, "p1")
     if np.linalg.norm(b - a) < 1e-9:
         raise InputError("p1", "coincides with p0")
-    v_max, a_max = _positive(v_max, "v_max"), _positive(a_max, "a_max")
+    v_max, a_max = positive(v_max, "v_max"), positive(a_max, "a_max")
     path = _Path.from_primitives([_line(a, b)], v_max, a_max)
-    return _fit_bspline(path, np.zeros(3), v_max, a_max, _positive(knot_span, "knot_span"))[0]
+    return _fit_bspline(path, np.zeros(3), v_max, a_max, positive(knot_span, "knot_span"))[0]
 
 
 # ------------------------------------------------------------------ validation
-def _positive(value: float, name: str) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise InputError(name, f"must be a positive number, got {value!r}") from None
-    if not math.isfinite(out) or out <= 0:
-        raise InputError(name, f"must be a positive number, got {value!r}")
-    return out
-
-
-def _point(value: ArrayLike, name: str) -> FloatArray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(name, f"must be 3 finite numbers (x, y, z), got {value!r}")
-    return arr
-
-
 # ------------------------------------------------------------ grid and search
 class _NoPath(Exception):
     pass

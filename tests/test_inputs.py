@@ -65,7 +65,7 @@ CPS = np.array([[0, 0, 0], [1, 0, 0], [2, 1, 0], [3, 1, 1], [4, 2, 1]], dtype=fl
     (lambda: RetimeInput(trajectory=bspline(1, 5, 1.0), limits=Limits(1, 1), smoothness=-1),
      "smoothness", ">= 0"),
     (lambda: RetimeInput(trajectory=bspline(1, 5, 1.0), limits=Limits(1, 1),
-                         start_velocity=[1.0, np.nan, 0]), "start_velocity", "finite"),
+                         start_velocity=[1.0, np.nan, 0]), "start_velocity[1]", "finite"),
     (lambda: RetimeInput(trajectory=bspline(1, 5, 1.0), limits=Limits(1, 1),
                          speed_limits=np.ones(3)), "speed_limits", "grid node"),
     (lambda: RetimeInput(trajectory=CPS, limits=Limits(1, 1)), "trajectory", "Trajectory"),
