@@ -251,6 +251,18 @@ def _geometry(
     return margin, w, obs_var, has
 
 
+def _inputs(p: ArrayLike, p_name: str, vec: ArrayLike, vec_name: str, obstacle: ArrayLike,
+            model: UncertaintyModel | None, params: ChanceParams | None
+            ) -> tuple[UncertaintyModel, ChanceParams, FloatArray, FloatArray, FloatArray]:
+    """Defaults for the model and parameters, and the three per-sample arrays checked
+    to the same number of rows (obstacle rows may be NaN: no obstacle)."""
+    pos = _rows(p, p_name)
+    n = pos.shape[0]
+    return (UncertaintyModel() if model is None else model,
+            ChanceParams() if params is None else params,
+            pos, _rows(vec, vec_name, n), _rows(obstacle, "obstacle", n, allow_nan=True))
+
+
 def collision_probability(
     p_mean: ArrayLike,
     velocity: ArrayLike,
@@ -270,12 +282,8 @@ def collision_probability(
     nominal position inside the ellipsoid gives at least 1/2 (and exactly 1 when
     it coincides with the obstacle).
     """
-    model = UncertaintyModel() if model is None else model
-    params = ChanceParams() if params is None else params
-    p = _rows(p_mean, "p_mean")
-    n = p.shape[0]
-    vel = _rows(velocity, "velocity", n)
-    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
+    model, params, p, vel, obs = _inputs(p_mean, "p_mean", velocity, "velocity", obstacle,
+                                         model, params)
     margin, w, obs_var, has = _geometry(p, obs, params)
     var = np.einsum("ij,ij->i", w, model.std(vel) ** 2) + obs_var
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -305,12 +313,9 @@ def speed_limits(
     The limit depends on position, direction and obstacle only, so it is a fixed
     bound ``|sigma'_i|^2 beta_i <= limit_i^2`` in the SOCP.
     """
-    model = UncertaintyModel() if model is None else model
-    params = ChanceParams() if params is None else params
-    pos = _rows(p, "p")
+    model, params, pos, u, obs = _inputs(p, "p", direction, "direction", obstacle, model,
+                                         params)
     n = pos.shape[0]
-    u = _rows(direction, "direction", n)
-    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
     un = np.linalg.norm(u, axis=1)
     u = u / np.where(un > 0.0, un, 1.0)[:, None]
 
@@ -385,12 +390,9 @@ def monte_carlo_collision_probability(
     ellipsoid, not the linearised half-space. Returns the hit fraction
     ``(n,)`` (0 for a point robot and for NaN obstacle rows).
     """
-    model = UncertaintyModel() if model is None else model
-    params = ChanceParams() if params is None else params
-    p = _rows(p_mean, "p_mean")
+    model, params, p, vel, obs = _inputs(p_mean, "p_mean", velocity, "velocity", obstacle,
+                                         model, params)
     n = p.shape[0]
-    vel = _rows(velocity, "velocity", n)
-    obs = _rows(obstacle, "obstacle", n, allow_nan=True)
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)):
         raise InputError("n_samples", "must be an integer")
     if n_samples < 1:
