@@ -62,6 +62,7 @@ def test_estimator_learns_in_flight_slows_braking_zones_and_survives_restart():
             home = sim.home_enu
 
         est = learned["estimate"]
+        print("learned uncertainty:", learned)
         assert est["m"] == pytest.approx(TRUE_M, rel=0.15), learned
         assert abs(est["b"] - TRUE_B) <= 0.15 * abs(TRUE_B) + 0.02, learned
         assert learned["in_use"] == "estimate" and learned["samples"] > 50
