@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,15 +53,15 @@ def _require(d: dict[str, Any], key: str) -> Any:
     return d[key]
 
 
-def check_envelope(d: object, kind: str) -> dict[str, Any]:
+def check_envelope(d: object, kind: str, version: int = VERSION) -> Mapping[str, Any]:
     """Check that ``d`` is a message of ``kind`` in a version we read."""
-    if not isinstance(d, dict):
+    if not isinstance(d, Mapping):
         raise InputError("(message)", f"must be a JSON object, got {type(d).__name__}")
     if d.get("schema") != kind:
         raise InputError("schema", f"must be {kind!r}, got {d.get('schema')!r}")
-    if d.get("version") != VERSION:
+    if isinstance(d.get("version"), bool) or d.get("version") != version:
         raise InputError("version", f"version {d.get('version')!r} is not supported "
-                         f"(this build reads version {VERSION})")
+                         f"(this build reads version {version})")
     return d
 
 

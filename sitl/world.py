@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rota.errors import InputError
+from rota.schema import check_envelope
 
 FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
@@ -279,13 +280,7 @@ class World:
     @classmethod
     def from_dict(cls, data: Any) -> World:
         """Inverse of :meth:`to_dict`; raises :class:`InputError` naming the bad field."""
-        if not isinstance(data, Mapping):
-            raise InputError("world", f"must be an object, got {type(data).__name__}")
-        if data.get("schema") != SCHEMA:
-            raise InputError("schema", f"must be {SCHEMA!r}, got {data.get('schema')!r}")
-        if data.get("version") != SCHEMA_VERSION:
-            raise InputError("version", f"unsupported version {data.get('version')!r} "
-                             f"(this reader knows {SCHEMA_VERSION})")
+        data = check_envelope(data, SCHEMA, SCHEMA_VERSION)
         for key in ("bounds", "start", "goal", "obstacles"):
             if key not in data:
                 raise InputError(key, "is required")
