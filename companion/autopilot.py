@@ -114,7 +114,16 @@ class Autopilot:
                 t.armed = bool(await self._tel.armed())
                 t.landed_state = _name(await self._tel.landed_state())
                 t.healthy = bool(await self._tel.health_all_ok())
+            # (not the position: MAVSDK's getter returns the last value it has, which
+            # would hide a link loss; freshness comes from the subscription alone)
             await asyncio.sleep(1.0)
+
+    def _set_position(self, pv) -> None:  # noqa: ANN001
+        p, v = pv.position, pv.velocity
+        t = self.telemetry
+        t.position = ned_to_enu([p.north_m, p.east_m, p.down_m])
+        t.velocity = ned_to_enu([v.north_m_s, v.east_m_s, v.down_m_s])
+        t.position_time = time.monotonic()
 
     async def _watch(self, name: str, gen) -> None:  # noqa: ANN001
         t = self.telemetry
@@ -122,10 +131,7 @@ class Autopilot:
             now = time.monotonic()
             t.seen[name] = now
             if name == "position":
-                p, v = item.position, item.velocity
-                t.position = ned_to_enu([p.north_m, p.east_m, p.down_m])
-                t.velocity = ned_to_enu([v.north_m_s, v.east_m_s, v.down_m_s])
-                t.position_time = now
+                self._set_position(item)
             elif name == "armed":
                 t.armed = bool(item)
             elif name == "mode":
