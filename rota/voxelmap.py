@@ -128,6 +128,11 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
+#: Maps up to this many voxels keep one k-d tree for all queries; larger ones crop
+#: to the query's bounding box each time (paper Alg. 1, lines 5-9).
+TREE_CACHE_LIMIT = 2_000_000
+
+
 @dataclass(frozen=True, eq=False)
 class VoxelMap:
     """Occupied voxels of an occupancy map (ENU, metres).
@@ -297,6 +302,28 @@ class VoxelMap:
         obst = np.full((m, 3), np.nan)
         if m == 0 or len(self) == 0:
             return dist, obst
+        if len(self) <= TREE_CACHE_LIMIT:
+            # Replans query the same map again and again: one k-d tree over the whole
+            # map, built on first use and kept, answers exactly like the cropped tree of
+            # Alg. 1 (results are cut at the same margin) without rebuilding it.
+            local = self.occupied
+            tree = self.__dict__.get("_tree")
+            if tree is None:
+                tree = cKDTree(local)
+                object.__setattr__(self, "_tree", tree)
+        else:
+            lo = pts.min(axis=0) - margin
+            hi = pts.max(axis=0) + margin
+            occ = self.occupied
+            local = occ[np.all((occ >= lo) & (occ <= hi), axis=1)]
+            if local.shape[0] == 0:
+                return dist, obst
+            tree = cKDTree(local)
+        d, j = tree.query(pts, k=1, distance_upper_bound=margin * (1 + 1e-12))
+        found = np.isfinite(d)
+        dist[found] = d[found]
+        obst[found] = local[j[found]]
+        return dist, obst
         lo = pts.min(axis=0) - margin
         hi = pts.max(axis=0) + margin
         occ = self.occupied
