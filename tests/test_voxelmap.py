@@ -297,3 +297,18 @@ def test_from_dict_missing_key() -> None:
     with pytest.raises(InputError) as e:
         VoxelMap.from_dict(d)
     assert e.value.field == "resolution"
+
+
+def test_cached_tree_and_cropped_tree_agree(monkeypatch) -> None:
+    """Small maps keep one k-d tree; large ones crop per query (Alg. 1): same answers."""
+    import rota.voxelmap as vm
+
+    rng = np.random.default_rng(3)
+    m = VoxelMap.from_points(rng.uniform(-5, 5, (4000, 3)), 0.1)
+    q = rng.uniform(-7, 7, (500, 3))
+    cached = m.nearest(q, bbox_margin=1.5)
+    monkeypatch.setattr(vm, "TREE_CACHE_LIMIT", 0)
+    cropped = VoxelMap(m.resolution, m.occupied).nearest(q, bbox_margin=1.5)
+    np.testing.assert_array_equal(cached[0], cropped[0])
+    np.testing.assert_array_equal(cached[1], cropped[1])
+    assert np.isinf(cached[0]).any() and np.isfinite(cached[0]).any()
