@@ -283,7 +283,9 @@ class VoxelMap:
         bounding box grown by ``bbox_margin`` (m) go into a k-d tree
         (``scipy.spatial.cKDTree``); each point is then queried. Every obstacle
         within ``bbox_margin`` of a query point lies in that box, so results are
-        exact up to ``bbox_margin``; beyond it they are reported as "none":
+        exact up to ``bbox_margin``; beyond it they are reported as "none". Maps of
+        up to :data:`TREE_CACHE_LIMIT` voxels instead keep one tree over the whole
+        map across queries (same answers, no rebuild per replan).
 
         Returns:
             ``(distances (m,), obstacles (m, 3))``. Where no occupied voxel lies
@@ -319,18 +321,6 @@ class VoxelMap:
             if local.shape[0] == 0:
                 return dist, obst
             tree = cKDTree(local)
-        d, j = tree.query(pts, k=1, distance_upper_bound=margin * (1 + 1e-12))
-        found = np.isfinite(d)
-        dist[found] = d[found]
-        obst[found] = local[j[found]]
-        return dist, obst
-        lo = pts.min(axis=0) - margin
-        hi = pts.max(axis=0) + margin
-        occ = self.occupied
-        local = occ[np.all((occ >= lo) & (occ <= hi), axis=1)]
-        if local.shape[0] == 0:
-            return dist, obst
-        tree = cKDTree(local)
         d, j = tree.query(pts, k=1, distance_upper_bound=margin * (1 + 1e-12))
         found = np.isfinite(d)
         dist[found] = d[found]
