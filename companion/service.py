@@ -568,8 +568,11 @@ class Service:
                 self._take_over(now)
             if isinstance(self.source, Plan | Brake) and self.source.finished(now):
                 end = self.source.command(now).position
-                self.source = Hold(end, "end of trajectory")
-                self._event(f"end of trajectory: holding at {msgs.vec(end, 2)}")
+                # a finished brake keeps its reason (why the vehicle holds)
+                reason = self.source.reason if isinstance(self.source, Brake) else \
+                    "end of trajectory"
+                self.source = Hold(end, reason)
+                self._event(f"{reason}: holding at {msgs.vec(end, 2)}")
             cmd = self._commanded(now)
             if not (np.all(np.isfinite(cmd.position)) and np.all(np.isfinite(cmd.velocity))
                     and np.all(np.isfinite(cmd.acceleration))):
