@@ -5,22 +5,34 @@ ENU; the conversion to NED happens here, once.
 PX4's offboard rules (PX4 user guide, "Offboard Mode"): setpoints must already
 stream (> 2 Hz, newer PX4 about 1 s) before the mode switch, and must keep
 streaming or PX4 runs its offboard-loss failsafe after ``COM_OF_LOSS_T``.
+
+Setpoints go out as single SET_POSITION_TARGET_LOCAL_NED messages through
+MAVSDK's MAVLink-direct plugin, not its offboard plugin: the offboard plugin
+re-sends the last setpoint at 20 Hz from its own thread, so PX4 would not see a
+stalled service, and after a stall longer than ``COM_OF_LOSS_T`` that stale
+re-sending would take PX4 back into OFFBOARD (real PX4 returns to OFFBOARD by
+itself when setpoints resume). Here the vehicle receives exactly what the
+setpoint loop sends, nothing else.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
+import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
-from mavsdk.asyncio.plugins.offboard import OffboardAsync
+from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
-from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
+from mavsdk.plugins.mavlink_direct import MavlinkMessage
 from numpy.typing import NDArray
 
 from companion.frames import enu_to_ned, ned_to_enu
@@ -43,6 +55,25 @@ def route_mavsdk_logs() -> None:
         return True
 
     log_subscribe(handler)
+
+
+# MAVLink constants (common.xml) and PX4's custom mode for OFFBOARD (px4_custom_mode.h)
+_MAV_CMD_DO_SET_MODE = 176
+_MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+_PX4_MAIN_MODE_OFFBOARD = 6
+_MAV_FRAME_LOCAL_NED = 1
+_TYPE_MASK_PVA_YAW = 2048  # position, velocity, acceleration and yaw used; yaw rate ignored
+_MAV_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupported",
+                4: "failed", 5: "in progress", 6: "cancelled"}
+
+
+#: Position telemetry asked of PX4 (its silence ends the setpoint stream within 0.8 s).
+POSITION_RATE_HZ = 30.0
+#: ODOMETRY (for PX4's position covariance, used by the estimator at 5 Hz). MAVSDK 4.1's
+#: odometry subscription keeps about 180 bytes per message it delivers (measured: a bare
+#: MAVSDK script subscribed to it alone grew 0.32 MB/min at PX4's 30 Hz, flat without it),
+#: so the service asks for no more than it uses.
+ODOMETRY_RATE_HZ = 5.0
 
 
 class AutopilotError(RuntimeError):
@@ -74,9 +105,15 @@ class Autopilot:
         self._mavsdk: Mavsdk | None = None
         self._tel: TelemetryAsync | None = None
         self._action: ActionAsync | None = None
-        self._offboard: OffboardAsync | None = None
+        self._direct: MavlinkDirectAsync | None = None
         self._system = None
+        self._target = (1, 1)  # the autopilot's MAVLink system and component id
         self._tasks: list[asyncio.Task] = []
+        self._boot = time.monotonic()
+        #: PX4's COM_OF_LOSS_T, read at connection (None until read)
+        self.offboard_loss_timeout_s: float | None = None
+        #: called with (severity name, text) for every STATUSTEXT from the autopilot
+        self.on_status_text: Callable[[str, str], None] = lambda severity, text: None
 
     # ---------------------------------------------------------------- connection
     async def connect(self, timeout_s: float) -> None:
@@ -90,8 +127,17 @@ class Autopilot:
             raise AutopilotError(f"no autopilot on {self.url} within {timeout_s:.0f} s")
         self._system = system
         self._tel = TelemetryAsync(system)
+        with contextlib.suppress(Exception):  # the stream stops when positions stop coming
+            await asyncio.wait_for(self._tel.set_rate_position_velocity_ned(POSITION_RATE_HZ),
+                                   5.0)
+        try:
+            await asyncio.wait_for(self._tel.set_rate_odometry(ODOMETRY_RATE_HZ), 5.0)
+        except Exception as exc:  # noqa: BLE001 - MAVSDK raises TelemetryError; PX4's rate stays
+            log.warning("could not set PX4's ODOMETRY rate to %g Hz: %s", ODOMETRY_RATE_HZ, exc)
         self._action = ActionAsync(system)
-        self._offboard = OffboardAsync(system)
+        self._direct = MavlinkDirectAsync(system)
+        sysid = int(system._system.get_system_id())
+        self._target = (sysid, 1)  # MAV_COMP_ID_AUTOPILOT1
         self._tasks = [asyncio.create_task(self._watch(name, gen), name=f"telemetry-{name}")
                        for name, gen in (
                            ("position", self._tel.subscribe_position_velocity_ned()),
@@ -100,20 +146,36 @@ class Autopilot:
                            ("landed", self._tel.subscribe_landed_state()),
                            ("health", self._tel.subscribe_health_all_ok()),
                            ("odometry", self._tel.subscribe_odometry()),
-                           ("attitude", self._tel.subscribe_attitude_euler()))]
+                           ("attitude", self._tel.subscribe_attitude_euler()),
+                           ("statustext", self._tel.subscribe_status_text()))]
         self._tasks.append(asyncio.create_task(self._poll(), name="telemetry-poll"))
+        param = ParamAsync(system)
+        try:
+            self.offboard_loss_timeout_s = float(
+                await asyncio.wait_for(param.get_param_float("COM_OF_LOSS_T"), 5.0))
+        except Exception as exc:  # noqa: BLE001 - the configured value is used instead
+            log.warning("could not read PX4's COM_OF_LOSS_T: %s", exc)
+        finally:
+            with contextlib.suppress(Exception):
+                param.destroy()
 
     async def _poll(self) -> None:
         """Once a second, read the slow-changing states directly: a subscription
         may only report changes, and one made after the first heartbeat would
         otherwise wait for the next change."""
         t = self.telemetry
+        reads = (("mode", "flight_mode", lambda: self._tel.flight_mode(), _name),
+                 ("armed", "armed", lambda: self._tel.armed(), bool),
+                 ("landed", "landed_state", lambda: self._tel.landed_state(), _name),
+                 ("health", "healthy", lambda: self._tel.health_all_ok(), bool))
         while True:
-            with contextlib.suppress(Exception):
-                t.flight_mode = _name(await self._tel.flight_mode())
-                t.armed = bool(await self._tel.armed())
-                t.landed_state = _name(await self._tel.landed_state())
-                t.healthy = bool(await self._tel.health_all_ok())
+            for name, attr, read, convert in reads:
+                asked = time.monotonic()
+                with contextlib.suppress(Exception):
+                    value = convert(await read())
+                    # a subscription update that came in meanwhile is newer: keep it
+                    if t.seen.get(name, 0.0) < asked:
+                        setattr(t, attr, value)
             # (not the position: MAVSDK's getter returns the last value it has, which
             # would hide a link loss; freshness comes from the subscription alone)
             await asyncio.sleep(1.0)
@@ -142,6 +204,8 @@ class Autopilot:
                 t.healthy = bool(item)
             elif name == "attitude":
                 t.yaw_ned_deg = float(item.yaw_deg)
+            elif name == "statustext":
+                self.on_status_text(_name(item.type).lower(), str(item.text))
             elif name == "odometry":
                 # pose covariance: upper-right triangle of the 6x6 matrix, row-major;
                 # x, y, z variances at 0, 6, 11 (NaN in the first entry: unknown)
@@ -162,14 +226,14 @@ class Autopilot:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
         self._tasks = []
-        for plugin in (self._offboard, self._action, self._tel):
+        for plugin in (self._direct, self._action, self._tel):
             if plugin is not None:
                 with contextlib.suppress(Exception):
                     plugin.destroy()
         if self._mavsdk is not None:
             with contextlib.suppress(Exception):
                 self._mavsdk.destroy()
-        self._mavsdk = self._tel = self._action = self._offboard = self._system = None
+        self._mavsdk = self._tel = self._action = self._direct = self._system = None
 
     # ------------------------------------------------------------------ commands
     async def _call(self, what: str, coro) -> None:  # noqa: ANN001
@@ -196,29 +260,51 @@ class Autopilot:
         await self._call("hold", self._action.hold())
 
     async def start_offboard(self) -> None:
-        await self._call("offboard start", self._offboard.start())
+        """Switch PX4 to OFFBOARD (MAV_CMD_DO_SET_MODE with PX4's custom main mode 6);
+        the setpoint stream must already run."""
+        await self._command(_MAV_CMD_DO_SET_MODE, "offboard start",
+                            _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, _PX4_MAIN_MODE_OFFBOARD, 0)
 
-    async def stop_offboard(self) -> None:
-        await self._call("offboard stop", self._offboard.stop())
+    async def _command(self, command: int, what: str, *params: float) -> None:
+        if self._direct is None:
+            raise AutopilotError(f"{what} failed: not connected")
+        fields = {"target_system": self._target[0], "target_component": self._target[1],
+                  "command": command, "confirmation": 0}
+        fields.update({f"param{i + 1}": float(x) for i, x in
+                       enumerate((*params, *(0.0,) * (7 - len(params))))})
+        message = MavlinkMessage("COMMAND_LONG", 0, 0, *self._target, json.dumps(fields))
+        try:
+            ack = await self._direct.send_command(message)
+            result = int(json.loads(ack.fields_json or "{}").get("result", -1))
+        except Exception as exc:  # noqa: BLE001 - MAVSDK raises MavlinkDirectError
+            raise AutopilotError(f"{what} failed: {exc}") from None
+        if result != 0:
+            raise AutopilotError(f"{what} failed: PX4 answered "
+                                 f"{_MAV_RESULTS.get(result, f'no acknowledgement ({result})')}")
 
-    async def stop_stream(self) -> None:
-        """End MAVSDK's periodic re-sending of the last setpoint (it keeps sending at
-        20 Hz once a setpoint was set, which would hide a dead service from PX4's
-        offboard-loss failsafe): the plugin is replaced by a fresh one."""
-        if self._offboard is None or self._system is None:
-            return
-        with contextlib.suppress(Exception):
-            self._offboard.destroy()
-        self._offboard = OffboardAsync(self._system)
-
-    async def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
-                   yaw_ned_deg: float) -> None:
-        """One SET_POSITION_TARGET_LOCAL_NED with velocity/acceleration feed-forward."""
+    def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
+             yaw_ned_deg: float, stamp: float, not_after: float = math.inf) -> bool:
+        """One SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
+        feed-forward, yaw) for the monotonic time ``stamp`` (its ``time_boot_ms``).
+        Synchronous and quick (one UDP datagram); MAVSDK does not repeat it. Not
+        sent (False) if the monotonic clock is past ``not_after`` once the message
+        is built: a setpoint held up by a stall is never sent late."""
+        if self._direct is None:
+            raise AutopilotError("not connected")
         p, v, a = enu_to_ned(p_enu), enu_to_ned(v_enu), enu_to_ned(a_enu)
-        await self._offboard.set_position_velocity_acceleration_ned(
-            PositionNedYaw(float(p[0]), float(p[1]), float(p[2]), float(yaw_ned_deg)),
-            VelocityNedYaw(float(v[0]), float(v[1]), float(v[2]), float(yaw_ned_deg)),
-            AccelerationNed(float(a[0]), float(a[1]), float(a[2])))
+        fields = {"time_boot_ms": int(round((stamp - self._boot) * 1e3)) & 0xFFFFFFFF,
+                  "target_system": self._target[0], "target_component": self._target[1],
+                  "coordinate_frame": _MAV_FRAME_LOCAL_NED, "type_mask": _TYPE_MASK_PVA_YAW,
+                  "x": float(p[0]), "y": float(p[1]), "z": float(p[2]),
+                  "vx": float(v[0]), "vy": float(v[1]), "vz": float(v[2]),
+                  "afx": float(a[0]), "afy": float(a[1]), "afz": float(a[2]),
+                  "yaw": math.radians(yaw_ned_deg), "yaw_rate": 0.0}
+        message = MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, *self._target,
+                                 json.dumps(fields))
+        if time.monotonic() > not_after:
+            return False
+        self._direct._plugin.send_message(message)
+        return True
 
 
 def _name(value: object) -> str:

@@ -1,13 +1,14 @@
-"""``rota-companion``: the flight service's command line.
+"""rota-companion: the flight service's command line.
 
-* ``rota-companion run [--config FILE]``: run the service (systemd: Type=notify).
-* ``rota-companion check-config FILE``: validate a configuration and print it.
-* ``rota-companion demo [--out DIR] [--seed N]``: a simulated flight through a
-  forest (the README's main job): no PX4 install, no Zenoh router needed.
-* ``rota-companion bench-stream [--out DIR]``: setpoint-stream jitter at 50 Hz
-  while 30 m, dtau = 0.01 s re-times run (``docs/benchmarks.md``).
+Run the flight service (under systemd: Type=notify), check a configuration,
+fly the simulated demo, measure the setpoint stream's jitter, or prove the
+service: a long flight with replans at 10 Hz (soak), hostile and oversized
+messages on every input (fuzz); make a fleet's certificates and Zenoh
+configurations (fleet).
 
-Exit status: 0 success, 2 bad configuration, 1 other failure.
+Exit status: 0 success; 1 a failure at run time (the demo did not reach its
+goal, Zenoh or MAVLink could not be opened); 2 a bad configuration (the error
+names the setting); 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -17,10 +18,13 @@ import asyncio
 import json
 import logging
 import os
+import re
 import signal
 import sys
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
-from companion.config import ConfigError, load
+from companion.config import Config, ConfigError, load
 
 _SYSLOG = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
            logging.CRITICAL: 2}
@@ -36,12 +40,15 @@ class _JournalFormatter(logging.Formatter):
 
 
 def setup_logging(level: str) -> None:
+    """Log at ``level`` to stdout; events (INFO) always reach the flight record."""
     handler = logging.StreamHandler(sys.stdout)
+    handler.setLevel(level.upper())
     if os.environ.get("JOURNAL_STREAM") or os.environ.get("INVOCATION_ID"):
         handler.setFormatter(_JournalFormatter())
     else:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    logging.basicConfig(level=level.upper(), handlers=[handler], force=True)
+    logging.basicConfig(level=min(logging.INFO, logging.getLevelName(level.upper())),
+                        handlers=[handler], force=True)
     # MAVSDK's debug chatter only when asked for explicitly
     logging.getLogger("rota.mavsdk").setLevel(max(logging.INFO, logging.getLevelName(
         level.upper())))
@@ -57,15 +64,61 @@ async def _serve(cfg) -> None:  # noqa: ANN001
     await Service(cfg).run(stop)
 
 
+#: MAVSDK connection URLs: udp/tcp with host and port, or a serial device.
+_MAVLINK_URL = re.compile(r"^((udp|udpin|udpout|tcp|tcpin|tcpout)://[^/:\s]*:\d{1,5}"
+                          r"|(serial|serial_flowcontrol):///[^\s:]+(:\d+)?)$")
+
+
+def check_environment(cfg: Config) -> None:
+    """Checks beyond the file's own: the Zenoh configuration file loads, the
+    MAVLink URL is one MAVSDK understands. Raises ConfigError naming the setting."""
+    if not _MAVLINK_URL.match(cfg.mavlink.url):
+        raise ConfigError(f"[mavlink] url: {cfg.mavlink.url!r} is not a MAVSDK connection URL "
+                          "(udpin://HOST:PORT, tcpout://HOST:PORT, serial:///dev/ttyAMA0:921600)")
+    if cfg.zenoh.config_file:
+
+        path = cfg.zenoh.config_file
+        if not os.path.isfile(path):
+            raise ConfigError(f"[zenoh] config_file: {path}: no such file")
+    from companion.security import check_exposure, zenoh_config
+
+    for problem in check_exposure(cfg, zenoh_config(cfg)):  # refuses unless insecure
+        print(f"rota-companion: warning: INSECURE: {problem}", file=sys.stderr)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     cfg = load(args.config)
+    check_environment(cfg)
     setup_logging(cfg.service.log_level)
-    asyncio.run(_serve(cfg))
+    try:
+        asyncio.run(_serve(cfg))
+    except Exception as exc:
+        if type(exc).__module__.startswith("zenoh"):
+            endpoints = ", ".join(cfg.zenoh.listen) if not cfg.zenoh.config_file else \
+                cfg.zenoh.config_file
+            raise RunError(f"cannot open Zenoh ({endpoints}): {str(exc).split(' at ')[0]} "
+                           "(is the port in use? zenohd listens on 7447 too)") from None
+        raise
     return 0
+
+
+class RunError(RuntimeError):
+    """A failure at run time, said in one line (exit status 1)."""
+
+
+class UsageError(ValueError):
+    """A bad option value, said in one line (exit status 2)."""
+
+
+def _positive(args: argparse.Namespace, *names: str) -> None:
+    for name in names:
+        if not getattr(args, name) > 0:
+            raise UsageError(f"--{name}: must be positive, got {getattr(args, name)}")
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     cfg = load(args.config)
+    check_environment(cfg)
     print(json.dumps(cfg.to_dict(), indent=1))
     print(f"{args.config}: OK", file=sys.stderr)
     return 0
@@ -75,21 +128,87 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from companion.demo import run_demo
 
     setup_logging("WARNING" if not args.verbose else "INFO")
-    summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed)
+    summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed, px4_build=args.px4)
     return 0 if summary["reached_goal"] and not summary["collisions"] else 1
 
 
 def cmd_bench_stream(args: argparse.Namespace) -> int:
     from companion.bench_stream import run_bench_stream
 
+    _positive(args, "seconds")
     setup_logging("WARNING")
-    run_bench_stream(args.out, args.rounds)
+    run_bench_stream(args.out, args.seconds)
     return 0
 
 
+def cmd_soak(args: argparse.Namespace) -> int:
+    from companion.soak import run_soak
+
+    _positive(args, "minutes")
+    setup_logging("WARNING")
+    figures = run_soak(args.minutes, seed=args.seed)
+    print(figures.summary())
+    for t, mb in figures.rss_mb:
+        print(f"  RSS at {t:7.1f} s: {mb:.1f} MB")
+    for e in figures.errors[:20]:
+        print(f"  error: {e}")
+    if args.out:
+        from dataclasses import asdict
+
+        Path(args.out).write_text(json.dumps(asdict(figures), indent=1, default=str) + "\n")
+    print("OK" if not figures.problems else "PROBLEMS: " + "; ".join(figures.problems))
+    return 0 if not figures.problems else 1
+
+
+def cmd_fuzz(args: argparse.Namespace) -> int:
+    from companion.fuzz import run_fuzz
+    from companion.proving import Flight
+
+    _positive(args, "examples")
+    setup_logging("WARNING")
+    flight = Flight(seed=args.seed)
+    with flight:
+        figures, window = run_fuzz(flight, args.examples, args.seed)
+    stream = flight.figures(window, flight.sim.report.setpoints)
+    print(figures.summary())
+    print(f"vehicle side: {stream.summary()}")
+    unsafe = stream.jumps + stream.outside_fence + stream.non_finite
+    print(f"unsafe setpoints: {unsafe}; largest gap {stream.max_gap_s * 1e3:.1f} ms; "
+          f"collisions: {len(flight.sim.report.collisions)}; service exit code "
+          f"{flight.exit_code}")
+    bad = figures.crashed or unsafe or stream.problems() or figures.replies < figures.queries
+    return 1 if bad else 0
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from companion.fleet import Fleet, FleetError, make_fleet
+
+    hosts = dict(h.split("=", 1) for h in args.host)
+    fleet = Fleet(vehicles=tuple(args.vehicles.split(",")),
+                  ground_stations=tuple(args.ground_stations.split(",")), hosts=hosts,
+                  days=args.days)
+    try:
+        written = make_fleet(fleet, args.dir, args.install_dir)
+    except FleetError as exc:
+        raise RunError(str(exc)) from None
+    for path in written:
+        print(path)
+    print(f"fleet in {args.dir}: keep ca/ca.key offline; copy each member's directory to its "
+          "computer (docs/security.md)")
+    return 0
+
+
+def package_version() -> str:
+    try:
+        return version("rota-companion")
+    except PackageNotFoundError:  # pragma: no cover - a source tree
+        return "unknown"
+
+
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rota-companion", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    doc = (__doc__ or "").split("\n\n")
+    parser = argparse.ArgumentParser(prog="rota-companion", description=doc[1], epilog=doc[2],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("run", help="run the flight service")
     p.add_argument("--config", help="TOML configuration (default: built-in defaults)")
     p.set_defaults(func=cmd_run)
@@ -101,11 +220,38 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=3, help="world and noise seed (default 3)")
     p.add_argument("--speed", type=float, default=2.0, help="speed limit, m/s (default 2)")
     p.add_argument("-v", "--verbose", action="store_true", help="log the service's events")
+    p.add_argument("--px4", metavar="BUILD_DIR", help="fly real PX4 SITL (the SIH quadrotor "
+                   "of this PX4 build, e.g. PX4-Autopilot/build/px4_sitl_default) instead of "
+                   "the sitl vehicle")
     p.set_defaults(func=cmd_demo)
-    p = sub.add_parser("bench-stream", help="setpoint jitter while long re-times run")
+    p = sub.add_parser("bench-stream", help="setpoint jitter while re-times run back to back")
     p.add_argument("--out", default=None, help="also write stream.json here")
-    p.add_argument("--rounds", type=int, default=8, help="re-times to run (default 8)")
+    p.add_argument("--seconds", type=float, default=5.0,
+                   help="how long to re-time back to back (default 5; the baseline is as long)")
     p.set_defaults(func=cmd_bench_stream)
+    p = sub.add_parser("soak", help="fly N minutes with replans at 10 Hz; memory, errors, gaps")
+    p.add_argument("--minutes", type=float, default=30.0, help="how long (default 30)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--out", default=None, help="also write the figures as JSON here")
+    p.set_defaults(func=cmd_soak)
+    p = sub.add_parser("fuzz", help="hostile messages on every input while flying")
+    p.add_argument("--examples", type=int, default=2000,
+                   help="generated messages (default 2000), plus four oversized ones")
+    p.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
+    p.set_defaults(func=cmd_fuzz)
+    p = sub.add_parser("fleet", help="certificates and Zenoh configs of a fleet (mutual TLS, "
+                       "access control)")
+    p.add_argument("dir", help="where to make (or extend) the fleet")
+    p.add_argument("--vehicles", required=True, help="vehicle ids, comma-separated")
+    p.add_argument("--ground-stations", default="gs",
+                   help="ground-station names, comma-separated (default gs)")
+    p.add_argument("--host", action="append", default=[], metavar="VEHICLE=HOST",
+                   help="where a vehicle is reached (default VEHICLE.local); repeat")
+    p.add_argument("--install-dir", default=None,
+                   help="where each member's directory will live on its computer (default: "
+                   "where it is made), e.g. /etc/rota-companion/fleet")
+    p.add_argument("--days", type=int, default=825, help="certificate validity (default 825)")
+    p.set_defaults(func=cmd_fleet)
     return parser
 
 
@@ -116,6 +262,15 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"rota-companion: configuration error: {exc}", file=sys.stderr)
         return 2
+    except RunError as exc:
+        print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
+        return 1
+    except UsageError as exc:
+        print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rota-companion {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ so a typo never silently falls back to a default.
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -14,8 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from companion.estimator import EstimatorSettings
+from companion.record import RecordSettings
+from companion.ros2.settings import Ros2Settings
+from companion.ros2.settings import check as check_ros2
 from rota.braking import BrakingParams
-from rota.chance import ChanceParams, UncertaintyModel
+from rota.chance import DEFAULT_MEMORY_S, ChanceParams, UncertaintyModel
 from rota.errors import InputError
 from rota.problem import Limits
 
@@ -30,6 +34,7 @@ class ServiceSection:
     key_prefix: str = "rota"
     log_level: str = "INFO"
     state_dir: str = "/var/lib/rota-companion"  # persisted state (estimator)
+    nice: int = -5  # CPU priority of the service (needs CAP_SYS_NICE; else it says so)
 
 
 @dataclass(frozen=True)
@@ -38,6 +43,8 @@ class MavlinkSection:
     connect_timeout_s: float = 30.0
     health_timeout_s: float = 30.0
     link_timeout_s: float = 1.5  # no telemetry for this long = link lost
+    # PX4's COM_OF_LOSS_T; the smaller of this and the value read from PX4 is used
+    offboard_loss_timeout_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -48,6 +55,7 @@ class ZenohSection:
     connect: tuple[str, ...] = ()
     telemetry_rate_hz: float = 10.0
     status_rate_hz: float = 2.0
+    insecure: bool = False  # true: start even if reachable without authentication (warned)
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,23 @@ class StreamSection:
     yaw: str = "path"  # "path": face along the path; "hold": keep the yaw at start
     takeoff_altitude_m: float = 1.5
     auto_start: bool = False  # arm, take off and start offboard on the first trajectory
+    stall_budget_s: float = 0.25  # a longer stall of the loop brakes (docs/service.md)
+
+
+@dataclass(frozen=True)
+class InputsSection:
+    """Caps on what arrives from the network (checked before anything is built)."""
+
+    max_trajectory_bytes: int = 4_000_000
+    max_map_bytes: int = 32_000_000
+    max_query_bytes: int = 65_536  # commands, config and estimator queries
+    max_map_voxels: int = 1_000_000
+    max_polynomial_degree: int = 15
+    max_json_depth: int = 16
+    max_messages_per_s: float = 50.0  # trajectories per second; more are dropped
+    max_maps_per_s: float = 2.0  # maps per second (each may be 32 MB): more are dropped
+    max_queries_per_s: float = 20.0  # per queryable (cmd, config, estimator); more refused
+    decode_timeout_s: float = 5.0  # a decode slower than this is abandoned
 
 
 @dataclass(frozen=True)
@@ -66,6 +91,7 @@ class LimitsSection:
     smoothness: float = 0.5  # lambda of the paper's Eq. 10
     dtau: float = 0.05  # re-timing grid step, s of trajectory time
     max_solve_s: float = 2.0  # a re-time slower than this is abandoned
+    solver_max_iter: int = 200  # the solver's iteration budget (fewer: the fallback)
 
 
 @dataclass(frozen=True)
@@ -75,10 +101,14 @@ class SafetySection:
     geofence_max: tuple[float, float, float] = (50.0, 50.0, 10.0)
     max_message_age_s: float = 2.0  # older trajectories/maps are rejected (needs "stamp")
     max_input_speed: float = 10.0  # reject trajectories planned faster than this, m/s
-    stitch_tolerance_m: float = 0.5  # max gap between vehicle and new trajectory start
+    stitch_tolerance_m: float = 1.0  # max gap between the command and a new trajectory
     planner_timeout_s: float = 0.0  # >0: hold when no trajectory for this long in flight
-    max_tracking_error_m: float = 1.5  # reported position this far from command -> hold
+    # reported position this far from every setpoint of the last tracking_lag_s -> hold
+    max_tracking_error_m: float = 1.5
+    tracking_lag_s: float = 1.0
     max_trajectory_points: int = 100000
+    # false: the planner has no clock; unstamped trajectories are accepted, by arrival
+    require_stamp: bool = True
 
 
 @dataclass(frozen=True)
@@ -92,6 +122,9 @@ class UncertaintySection:
     obstacle_std: float = 0.03
     v_floor: float = 0.5
     d_th: float = 1.0  # braking-zone distance threshold, m
+    # error memory T, s: a braking point's speed limit also holds over the T seconds before
+    # it (0: the paper's ROTA); default from the collision experiment (docs/table1.md)
+    memory_s: float = DEFAULT_MEMORY_S
 
 
 @dataclass(frozen=True)
@@ -100,10 +133,13 @@ class Config:
     mavlink: MavlinkSection = field(default_factory=MavlinkSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     stream: StreamSection = field(default_factory=StreamSection)
+    inputs: InputsSection = field(default_factory=InputsSection)
     limits: LimitsSection = field(default_factory=LimitsSection)
     safety: SafetySection = field(default_factory=SafetySection)
     uncertainty: UncertaintySection = field(default_factory=UncertaintySection)
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
+    record: RecordSettings = field(default_factory=RecordSettings)
+    ros2: Ros2Settings = field(default_factory=Ros2Settings)
 
     # ----------------------------------------------------------- derived objects
     def rota_limits(self) -> Limits:
@@ -111,7 +147,8 @@ class Config:
 
     def uncertainty_model(self) -> UncertaintyModel:
         u = self.uncertainty
-        return UncertaintyModel(m=u.m, b=u.b, floor=u.floor, per_axis=u.per_axis)
+        return UncertaintyModel(m=u.m, b=u.b, floor=u.floor, per_axis=u.per_axis,
+                                memory_s=u.memory_s)
 
     def chance_params(self) -> ChanceParams:
         u = self.uncertainty
@@ -132,8 +169,9 @@ class Config:
 
 _SECTION_TYPES = {
     "service": ServiceSection, "mavlink": MavlinkSection, "zenoh": ZenohSection,
-    "stream": StreamSection, "limits": LimitsSection, "safety": SafetySection,
-    "uncertainty": UncertaintySection, "estimator": EstimatorSettings,
+    "stream": StreamSection, "inputs": InputsSection, "limits": LimitsSection,
+    "safety": SafetySection, "uncertainty": UncertaintySection, "estimator": EstimatorSettings,
+    "record": RecordSettings, "ros2": Ros2Settings,
 }
 
 
@@ -202,7 +240,21 @@ def load(path: str | Path | None) -> Config:
         raise ConfigError(f"{p}: cannot read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML ({exc})") from None
-    return from_dict(data)
+    cfg = from_dict(data)
+    from companion.envelope import check_plausible
+
+    check_plausible(cfg)  # a file's envelope must make sense for a multicopter
+    return cfg
+
+
+def to_toml(cfg: Config) -> str:
+    """``cfg`` as a TOML file that :func:`load` reads back to the same settings."""
+    lines = []
+    for section, values in cfg.to_dict().items():
+        lines.append(f"[{section}]")
+        lines += [f"{k} = {json.dumps(list(v) if isinstance(v, tuple) else v)}"
+                  for k, v in values.items()]
+    return "\n".join(lines) + "\n"
 
 
 def validate(cfg: Config) -> None:
@@ -215,13 +267,18 @@ def validate(cfg: Config) -> None:
             raise ConfigError(f"[{section}] {name}: must be positive, got {v!r}")
 
     for section, name in [("mavlink", "connect_timeout_s"), ("mavlink", "health_timeout_s"),
-                          ("mavlink", "link_timeout_s"), ("zenoh", "telemetry_rate_hz"),
+                          ("mavlink", "link_timeout_s"), ("mavlink", "offboard_loss_timeout_s"),
+                          ("stream", "stall_budget_s"), ("zenoh", "telemetry_rate_hz"),
                           ("zenoh", "status_rate_hz"), ("stream", "rate_hz"),
                           ("stream", "takeoff_altitude_m"), ("limits", "v_max"),
                           ("limits", "a_max"), ("limits", "dtau"), ("limits", "max_solve_s"),
+                          ("limits", "solver_max_iter"),
                           ("safety", "max_message_age_s"), ("safety", "max_input_speed"),
                           ("safety", "stitch_tolerance_m"), ("safety", "max_tracking_error_m"),
-                          ("safety", "max_trajectory_points"), ("uncertainty", "d_th")]:
+                          ("safety", "tracking_lag_s"),
+                          ("safety", "max_trajectory_points"), ("uncertainty", "d_th"),
+                          ("record", "max_file_mb"), ("record", "queue")] + [
+                          ("inputs", f.name) for f in fields(InputsSection)]:
         positive(section, name)
     s = cfg.stream
     if s.rate_hz < 2.5:
@@ -243,6 +300,8 @@ def validate(cfg: Config) -> None:
         raise ConfigError("[limits] smoothness: must be >= 0")
     if cfg.zenoh.mode not in ("peer", "client", "router"):
         raise ConfigError(f"[zenoh] mode: must be peer, client or router, got {cfg.zenoh.mode!r}")
+    if not -20 <= cfg.service.nice <= 19:
+        raise ConfigError(f"[service] nice: must be -20 to 19, got {cfg.service.nice}")
     if cfg.service.log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError(f"[service] log_level: unknown level {cfg.service.log_level!r}")
     for name in ("vehicle_id", "key_prefix"):
@@ -250,12 +309,18 @@ def validate(cfg: Config) -> None:
         if not v or any(c in v for c in "/*$?#") or v != v.strip():
             raise ConfigError(f"[service] {name}: must be a non-empty Zenoh key chunk "
                               f"without / * $ ? #, got {v!r}")
+    if cfg.record.max_total_mb < cfg.record.max_file_mb:
+        raise ConfigError("[record] max_total_mb: must be at least max_file_mb")
     e = cfg.estimator
-    if e.min_samples < 0 or e.min_speed < 0 or e.gate <= 0 or e.measurement_std <= 0:
-        raise ConfigError("[estimator] min_samples, min_speed >= 0; gate, measurement_std > 0")
+    if e.min_samples < 0 or e.min_speed < 0 or e.gate <= 0 or e.sample_weight <= 0:
+        raise ConfigError("[estimator] min_samples, min_speed >= 0; gate, sample_weight > 0")
     if not (e.m_min <= cfg.uncertainty.m <= e.m_max and e.b_min <= cfg.uncertainty.b <= e.b_max):
         raise ConfigError("[estimator] m_min: the bounds must contain the configured "
                           "[uncertainty] m and b")
+    try:
+        check_ros2(cfg.ros2)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     try:
         cfg.rota_limits()
         cfg.uncertainty_model()

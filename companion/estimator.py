@@ -1,31 +1,45 @@
-"""In-flight estimation of ROTA's velocity-to-uncertainty model ``s = m v + b``
-(paper Eq. 15) with a Kalman filter (filterpy), per vehicle, persisted.
+"""In-flight estimation of ROTA's speed-to-deviation model ``s = m v + b`` (paper Eq. 15)
+and its memory time ``T`` (``docs/safety-model.md``), per vehicle, persisted.
 
-Evidence (see ``docs/estimator.md``): at the current speed ``v`` one
-measurement ``z`` of the position standard deviation, from
+What matters for a collision is how far the vehicle's **true** position is off the commanded
+path (a vehicle behind schedule but on the path is as safe as that point of the path; in a
+turn, lag cuts the corner, which is off the path). The companion sees part of it
+(``docs/estimator.md``):
 
-* ``s_px4``: PX4's own position standard deviation (the ODOMETRY pose
-  covariance, averaged over the three axes) - the state estimator's statement of
-  its uncertainty, the quantity Eq. 15 models;
-* ``s_track``: the standard deviation of the tracking error (reported minus
-  commanded position) over the last second, its mean removed: the random part
-  of how far the vehicle strays from the commanded path. The mean (a lag at
-  speed) is a controller property, not uncertainty.
+* the **tracking error** as the service measures it: PX4's position estimate minus the
+  nearest setpoint sent in the last ``[safety] tracking_lag_s`` (PX4's lag along the path
+  forgiven);
+* **PX4's own position standard deviation** (the ODOMETRY covariance): the part of the
+  deviation PX4 knows it cannot see (its estimate minus the truth). It is added as a
+  variance, ``d^2 = e_track^2 + s_px4^2`` per axis.
 
-``z = s_px4`` when PX4 reports a covariance, else ``z = s_track``. With
-``include_tracking`` the two add as independent contributions,
-``z = sqrt(s_px4^2 + s_track^2)``: more cautious (control error also moves the
-vehicle off its nominal position), but no longer the estimator's own model.
+What neither shows is the estimation error's real size where the EKF under-reports it, and
+how it correlates with the tracking error; docs/estimator.md measures that on PX4 SIH.
 
-The filter's state is ``[m, b]`` with a slow random walk; a measurement is
-linear, ``z = [v, 1] x``, where the model is above its floor. Robustness:
+The model: per horizontal axis the deviation is ``N(0, s^2)`` with ``s = max(m v_T + b,
+floor)``, where ``v_T`` is the largest speed of the last ``T`` seconds (``T = 0``: the speed
+now, the paper's model). This is exactly what ROTA enforces with error memory (the vehicle is
+at a braking point's limit for the last ``T`` seconds), so the learned ``T`` is the one ROTA
+needs. It is fitted by maximum likelihood, for every ``T`` on a grid at once, from sufficient
+statistics: per ``T`` and speed bin, the weighted count of axis samples, the sum of their
+squared deviations and of their speeds. The fit per ``T`` is a weighted least squares of the
+bins' RMS deviation on their mean speed, iterated (the weights are the Fisher information
+``2 n / s^2``; bins where the model is at its floor are left out), with the prior ``(m, b)``
+as a Gaussian penalty; ``T`` is then chosen by the likelihood. All of it is a few small
+numpy operations, cheap enough for the service's event loop.
 
-* the hover regime (``v < min_speed``) is skipped: it says nothing about ``m``;
-* an innovation beyond ``gate`` standard deviations is an outlier: rejected and
-  counted;
-* the estimate is clamped to configured bounds;
-* until ``min_samples`` measurements were accepted, the model handed to ROTA
-  is never less cautious than the configured prior;
+Robustness:
+
+* a sample whose deviation exceeds ``max_deviation_m`` (a replan jump, a glitch) or, once the
+  estimate is trusted, ``gate`` times the model's std, is an outlier: rejected and counted;
+* 5 Hz samples are correlated over about a second: each counts ``sample_weight``;
+* statistics fade with ``forget_s`` seconds of flight, so a changed vehicle is followed;
+* the estimate is clamped to configured bounds; ``T`` to ``[0, memory_max_s]``; a learned
+  ``T`` replaces the configured one only when it is longer and the likelihood favours it by
+  ``memory_evidence`` (nats, in weighted samples): the estimation error's own memory is
+  invisible to the companion, so the evidence can lengthen ``T``, never shorten it;
+* until ``min_samples`` samples were accepted, ROTA gets the estimate only if it is at least
+  as cautious as the configured model (never a faster ``m``, ``b`` or a shorter ``T``);
 * it can be frozen, set and reset; it is saved per vehicle and restored.
 """
 
@@ -35,36 +49,92 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from collections import deque
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 from rota.chance import UncertaintyModel
+
+#: Memory times the likelihood is evaluated on (s).
+MEMORY_GRID = tuple(np.round(np.arange(0.0, 3.01, 0.25), 2))
+#: Speed bins of the statistics (m/s): 0.1 m/s wide up to 8 m/s (faster samples: last bin).
+BIN_WIDTH, N_BINS = 0.1, 80
+_FLOOR = 0.01  # s never goes below this in the likelihood (m)
+SCHEMA = "rota/deviation-estimate"
 
 
 @dataclass(frozen=True)
 class EstimatorSettings:
     enabled: bool = True  # learn in flight (false: the configured model only)
-    min_samples: int = 150  # accepted measurements before the estimate may be less cautious
-    min_speed: float = 0.5  # m/s; slower measurements carry no information on m
+    min_samples: int = 150  # accepted samples before the estimate may be less cautious
+    min_speed: float = 0.5  # m/s; the low speed at which "as cautious" is judged
     m_min: float = 0.0
     m_max: float = 1.0
     b_min: float = -0.5
-    b_max: float = 0.5
+    b_max: float = 1.0
     prior_std_m: float = 0.15  # prior standard deviation of m (s)
     prior_std_b: float = 0.15  # prior standard deviation of b (m)
-    measurement_std: float = 0.03  # m, noise of one measurement
-    process_std: float = 0.001  # random walk of m and b per sqrt(s)
-    gate: float = 4.0  # innovations beyond this many standard deviations are outliers
-    include_tracking: bool = False  # add the tracking-error spread to PX4's std
+    sample_weight: float = 0.2  # weight of one 5 Hz sample (about one independent per second)
+    forget_s: float = 1200.0  # statistics fade with this time constant (s of flight)
+    max_deviation_m: float = 5.0  # a larger deviation is a glitch, not uncertainty
+    gate: float = 5.0  # once trusted: deviations beyond gate x the model's std are outliers
+    learn_memory: bool = True  # learn T (false: keep [uncertainty] memory_s)
+    memory_max_s: float = 3.0  # learned T at most this (s)
+    memory_evidence: float = 3.0  # log-likelihood gain needed to replace the configured T
     frozen: bool = False
 
 
+@dataclass(frozen=True)
+class Fit:
+    """The fitted model for one memory time."""
+
+    memory_s: float
+    m: float
+    b: float
+    m_std: float
+    b_std: float
+    nll: float
+
+
+def _fit_all(count: np.ndarray, sq: np.ndarray, vsum: np.ndarray, m0: float, b0: float,
+             s_m: float, s_b: float, bounds: tuple[float, float, float, float]
+             ) -> list[tuple[float, ...]]:
+    """Per memory time (rows): ``(m, b, m_std, b_std, nll)``, fitted from the bins'
+    weighted counts ``count``, sums of squared deviations ``sq`` and sums of speeds ``vsum``
+    (rows x bins; a bin's speed is its mean)."""
+    has = count > 1e-9
+    v = np.where(has, vsum / np.where(has, count, 1.0), (np.arange(N_BINS) + 0.5) * BIN_WIDTH)
+    rms = np.sqrt(np.where(has, sq / np.where(has, count, 1.0), 0.0))
+    m = np.full(len(count), m0)
+    b = np.full(len(count), b0)
+    lam_m, lam_b = 1.0 / s_m**2, 1.0 / s_b**2
+    cov = np.zeros((len(count), 2, 2))
+    for _ in range(4):  # IRLS: weights 2 n / s^2 at the current fit
+        line = m[:, None] * v + b[:, None]
+        s = np.maximum(line, _FLOOR)
+        # Bins where the model sits at its floor say nothing about the line.
+        w = np.where(has & (line > _FLOOR), 2.0 * count / s**2, 0.0)
+        a11 = (w * v * v).sum(1) + lam_m
+        a12 = (w * v).sum(1)
+        a22 = w.sum(1) + lam_b
+        r1 = (w * v * rms).sum(1) + lam_m * m0
+        r2 = (w * rms).sum(1) + lam_b * b0
+        det = a11 * a22 - a12 * a12
+        m = np.clip((a22 * r1 - a12 * r2) / det, bounds[0], bounds[1])
+        b = np.clip((a11 * r2 - a12 * r1) / det, bounds[2], bounds[3])
+        cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1] = a22 / det, a11 / det, -a12 / det
+    s = np.maximum(m[:, None] * v + b[:, None], _FLOOR)
+    nll = (sq / (2.0 * s**2) + count * np.log(s)).sum(1)
+    return [(float(m[i]), float(b[i]), float(math.sqrt(cov[i, 0, 0])),
+             float(math.sqrt(cov[i, 1, 1])), float(nll[i])) for i in range(len(count))]
+
+
 class UncertaintyEstimator:
-    """A Kalman filter on ``[m, b]``; also the service's uncertainty source."""
+    """Learns ``m``, ``b`` and ``T`` of the deviation model; also the service's uncertainty
+    source (``model()`` at every re-time, ``describe()`` for the status)."""
 
     def __init__(self, prior: UncertaintyModel, settings: EstimatorSettings,
                  path: Path | None = None, v_check: float = 2.0) -> None:
@@ -72,89 +142,150 @@ class UncertaintyEstimator:
         self.settings = settings
         self.path = path
         self.v_check = v_check  # speed at which "more cautious" is judged (the speed limit)
-        self.samples = 0
-        self.outliers = 0
-        self.skipped = 0
-        self._last_t: float | None = None
-        self._kf = self._new_filter()
+        self.grid = np.array([t for t in MEMORY_GRID if t <= settings.memory_max_s + 1e-9])
+        self.reset()
         if path is not None and path.exists():
             self.load()
 
-    # ------------------------------------------------------------ the filter
-    def _new_filter(self) -> KalmanFilter:
-        s = self.settings
-        kf = KalmanFilter(dim_x=2, dim_z=1)
-        kf.x = np.array([[self.prior.m], [self.prior.b]])
-        kf.P = np.diag([s.prior_std_m**2, s.prior_std_b**2])
-        kf.F = np.eye(2)
-        kf.R = np.array([[s.measurement_std**2]])
-        kf.Q = np.zeros((2, 2))
-        return kf
+    # ------------------------------------------------------------ evidence
+    def reset(self) -> None:
+        self._count = np.zeros((len(self.grid), N_BINS))
+        self._sq = np.zeros((len(self.grid), N_BINS))
+        self._vsum = np.zeros((len(self.grid), N_BINS))
+        self._speeds: deque[tuple[float, float]] = deque()
+        self.samples = self.outliers = self.skipped = 0
+        self._last_t: float | None = None
+        self._fits: list[Fit] | None = None
+        self._anchor = (self.prior.m, self.prior.b)
+        self._trusted = False
+        self._set_memory: float | None = None  # set() by the operator
 
     @property
-    def m(self) -> float:
-        return float(self._kf.x[0, 0])
+    def configured_memory_s(self) -> float:
+        """The memory time in force without evidence: set() by the operator, else the
+        configuration's."""
+        return self.prior.memory_s if self._set_memory is None else self._set_memory
 
-    @property
-    def b(self) -> float:
-        return float(self._kf.x[1, 0])
-
-    @property
-    def std(self) -> tuple[float, float]:
-        """Standard deviations of ``m`` and ``b`` (the filter's own uncertainty)."""
-        return float(math.sqrt(self._kf.P[0, 0])), float(math.sqrt(self._kf.P[1, 1]))
-
-    def observe(self, speed: float, z: float, t: float | None = None) -> str:
-        """One measurement: position std ``z`` (m) at ``speed`` (m/s).
-
-        Returns what happened: ``"accepted"``, ``"outlier"``, ``"hover"`` (no
-        information on m), ``"floor"`` (at the model's floor: not linear),
-        ``"frozen"``, ``"invalid"``.
-        """
+    def observe(self, speed: float, deviation: np.ndarray, reported_std: np.ndarray | None = None,
+                t: float | None = None) -> str:
+        """One sample: the vehicle's ``speed`` (m/s), its tracking error per horizontal axis
+        ``deviation`` (reported position minus the nearest recent setpoint, m) and PX4's
+        position std per axis (None: not reported). Returns ``"accepted"``, ``"outlier"``,
+        ``"frozen"`` or ``"invalid"``."""
         s = self.settings
         if s.frozen or not s.enabled:
             return "frozen"
-        if not (math.isfinite(speed) and math.isfinite(z)) or speed < 0 or z < 0:
+        dev = np.asarray(deviation, dtype=float)
+        rep = np.zeros_like(dev) if reported_std is None else np.asarray(reported_std, float)
+        if (not math.isfinite(speed) or speed < 0 or dev.ndim != 1 or rep.shape != dev.shape
+                or not (np.all(np.isfinite(dev)) and np.all(np.isfinite(rep)))):
             self.skipped += 1
             return "invalid"
-        if speed < s.min_speed:
-            self.skipped += 1
-            return "hover"
-        if z <= self.prior.floor + 1e-6:
-            self.skipped += 1
-            return "floor"
-        now = time.monotonic() if t is None else t
+        now = time.monotonic() if t is None else float(t)
         dt = 0.0 if self._last_t is None else max(now - self._last_t, 0.0)
         self._last_t = now
-        self._kf.Q = np.eye(2) * (s.process_std**2) * dt
-        self._kf.predict()
-        H = np.array([[speed, 1.0]])
-        y = z - float((H @ self._kf.x)[0, 0])
-        S = float((H @ self._kf.P @ H.T)[0, 0]) + s.measurement_std**2
-        if y * y > s.gate**2 * S:
+        self._speeds.append((now, float(speed)))
+        while self._speeds and self._speeds[0][0] < now - self.grid[-1] - 1e-9:
+            self._speeds.popleft()
+        v_t = self._window_speeds(now)
+        sq = float(np.sum(dev**2 + rep**2))
+        if np.sqrt(sq / len(dev)) > s.max_deviation_m:
             self.outliers += 1
             return "outlier"
-        self._kf.update(np.array([[z]]), H=H)
-        self._kf.x[0, 0] = float(np.clip(self.m, s.m_min, s.m_max))
-        self._kf.x[1, 0] = float(np.clip(self.b, s.b_min, s.b_max))
+        if self.samples >= s.min_samples:
+            used = self.model()
+            model_s = max(used.m * float(np.interp(used.memory_s, self.grid, v_t)) + used.b,
+                          _FLOOR)
+            if math.sqrt(sq / len(dev)) > s.gate * model_s:
+                self.outliers += 1
+                return "outlier"
+        if dt > 0.0 and s.forget_s > 0.0:
+            fade = math.exp(-dt / s.forget_s)
+            self._count *= fade
+            self._sq *= fade
+            self._vsum *= fade
+        rows = np.arange(len(self.grid))
+        bins = np.minimum((v_t / BIN_WIDTH).astype(int), N_BINS - 1)
+        self._count[rows, bins] += s.sample_weight * len(dev)
+        self._sq[rows, bins] += s.sample_weight * sq
+        self._vsum[rows, bins] += s.sample_weight * len(dev) * v_t
         self.samples += 1
+        self._fits = None
         return "accepted"
+
+    def _window_speeds(self, now: float) -> np.ndarray:
+        """Largest speed over the last T seconds, for every T of the grid."""
+        t = np.array([x[0] for x in self._speeds])
+        v = np.array([x[1] for x in self._speeds])
+        age = now - t
+        return np.array([v[age <= T + 1e-9].max() for T in self.grid])
+
+    # ------------------------------------------------------------- the fit
+    def fits(self) -> list[Fit]:
+        """The fitted model for every memory time of the grid."""
+        if self._fits is None:
+            s = self.settings
+            rows = _fit_all(self._count, self._sq, self._vsum, *self._anchor, s.prior_std_m,
+                            s.prior_std_b,
+                            (s.m_min, s.m_max, s.b_min, s.b_max))
+            self._fits = [Fit(float(T), *r) for T, r in zip(self.grid, rows, strict=True)]
+        return self._fits
+
+    def best(self) -> tuple[Fit, bool]:
+        """The learned model and whether its memory time was learned: the most likely memory
+        time when it is *longer* than the configured one (its nearest grid value) by at
+        least ``memory_evidence`` of log-likelihood, else the configured one.
+
+        Never shorter: the evidence shows the memory of the tracking error only. The
+        estimation error's own memory is invisible (PX4 reports a std, not the error), so
+        finding no memory in what the companion sees is no evidence that there is none."""
+        fits = self.fits()
+        conf = min(fits, key=lambda f: abs(f.memory_s - self.configured_memory_s))
+        if not self.settings.learn_memory:
+            return conf, False
+        top = min(fits, key=lambda f: f.nll)
+        if (top.memory_s > conf.memory_s
+                and conf.nll - top.nll >= self.settings.memory_evidence):
+            return top, True
+        return conf, False
+
+    @property
+    def m(self) -> float:
+        return self.best()[0].m
+
+    @property
+    def b(self) -> float:
+        return self.best()[0].b
+
+    @property
+    def memory_s(self) -> float:
+        """The learned memory time, or the configured one."""
+        fit, learned = self.best()
+        return fit.memory_s if learned else self.configured_memory_s
+
+    @property
+    def std(self) -> tuple[float, float]:
+        """Standard deviations of ``m`` and ``b`` (from the fit's information)."""
+        fit, _ = self.best()
+        return fit.m_std, fit.b_std
 
     # ---------------------------------------------- the uncertainty source
     def estimate(self) -> UncertaintyModel:
         """The current estimate as a model (whatever the evidence)."""
         return UncertaintyModel(m=self.m, b=self.b, floor=self.prior.floor,
-                                per_axis=self.prior.per_axis)
+                                per_axis=self.prior.per_axis, memory_s=self.memory_s)
 
     def in_use(self) -> str:
         """``"estimate"`` or ``"prior"``: which one ROTA gets now."""
         if not self.settings.enabled:
             return "prior"
-        if self.samples >= self.settings.min_samples:
+        if self.samples >= self.settings.min_samples or self._trusted:
             return "estimate"
-        # Before enough evidence: the estimate only if it is at least as cautious
-        # as the prior at low speed and at the speed limit.
+        # Before enough evidence: the estimate only if it is at least as cautious as the
+        # prior at low speed and at the speed limit, and remembers at least as long.
         est, pri = self.estimate(), self.prior
+        if est.memory_s < pri.memory_s:
+            return "prior"
         for v in (self.settings.min_speed, max(self.v_check, self.settings.min_speed)):
             if est.m * v + est.b < pri.m * v + pri.b:
                 return "prior"
@@ -168,83 +299,79 @@ class UncertaintyEstimator:
         used = self.model()
         return {"source": "estimator" if self.settings.enabled else "config",
                 "in_use": self.in_use(), "m": round(used.m, 5), "b": round(used.b, 5),
+                "memory_s": used.memory_s,
                 "estimate": {"m": round(self.m, 5), "b": round(self.b, 5),
-                             "m_std": round(sm, 5), "b_std": round(sb, 5)},
-                "prior": {"m": self.prior.m, "b": self.prior.b},
+                             "memory_s": self.memory_s, "m_std": round(sm, 5),
+                             "b_std": round(sb, 5)},
+                "prior": {"m": self.prior.m, "b": self.prior.b,
+                          "memory_s": self.prior.memory_s},
                 "samples": self.samples, "outliers": self.outliers,
                 "frozen": self.settings.frozen, "per_axis": self.prior.per_axis}
 
     # ------------------------------------------------------------- control
-    def reset(self) -> None:
-        self._kf = self._new_filter()
-        self.samples = self.outliers = self.skipped = 0
-        self._last_t = None
-
-    def set(self, m: float, b: float, std_m: float | None = None,
-            std_b: float | None = None) -> None:
+    def set(self, m: float, b: float, memory_s: float | None = None) -> None:
+        """Trust ``m``, ``b`` (and ``T``) as if ``min_samples`` had been seen: they become the
+        prior mean the data is fitted around, and the configured memory time."""
         s = self.settings
         if not (s.m_min <= m <= s.m_max and s.b_min <= b <= s.b_max):
             raise ValueError(f"m={m}, b={b} outside the bounds m in [{s.m_min}, {s.m_max}], "
                              f"b in [{s.b_min}, {s.b_max}]")
-        self._kf.x = np.array([[float(m)], [float(b)]])
-        if std_m is not None and std_b is not None:
-            self._kf.P = np.diag([std_m**2, std_b**2])
-        self.samples = max(self.samples, s.min_samples)  # an explicit setting is trusted
+        if memory_s is not None:
+            if not 0.0 <= memory_s <= s.memory_max_s:
+                raise ValueError(f"memory_s={memory_s} outside [0, {s.memory_max_s}]")
+            self._set_memory = float(memory_s)
+        self._anchor = (float(m), float(b))
+        self._trusted = True
+        self._fits = None
 
     def freeze(self, frozen: bool) -> None:
-        from dataclasses import replace
-
         self.settings = replace(self.settings, frozen=bool(frozen))
 
     # ---------------------------------------------------------- persistence
     def to_dict(self) -> dict[str, Any]:
-        return {"schema": "rota/uncertainty-estimate", "version": 1, "stamp": time.time(),
-                "m": self.m, "b": self.b, "P": self._kf.P.tolist(), "samples": self.samples,
-                "outliers": self.outliers, "frozen": self.settings.frozen,
-                "prior": asdict(self.prior)}
+        return {"schema": SCHEMA, "version": 1, "stamp": time.time(), "grid": self.grid.tolist(),
+                "bin_width": BIN_WIDTH, "count": self._count.tolist(), "sq": self._sq.tolist(),
+                "vsum": self._vsum.tolist(),
+                "anchor": list(self._anchor), "trusted": self._trusted,
+                "set_memory_s": self._set_memory,
+                "samples": self.samples, "outliers": self.outliers,
+                "frozen": self.settings.frozen, "prior": asdict(self.prior)}
 
     def save(self) -> None:
         if self.path is None:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
+        tmp.write_text(json.dumps(self.to_dict()))
         os.replace(tmp, self.path)  # atomic: a crash never leaves half a file
 
     def load(self) -> None:
         assert self.path is not None
         try:
             d = json.loads(self.path.read_text())
-            m, b = float(d["m"]), float(d["b"])
-            P = np.asarray(d["P"], dtype=float)
-            if P.shape != (2, 2) or not np.all(np.isfinite(P)) or not (
-                    math.isfinite(m) and math.isfinite(b)):
-                raise ValueError("non-finite or misshapen estimate")
+            if d.get("schema") != SCHEMA:
+                raise ValueError("not a deviation estimate (an older version learned PX4's "
+                                 "covariance only)")
+            count = np.asarray(d["count"], dtype=float)
+            sq = np.asarray(d["sq"], dtype=float)
+            vsum = np.asarray(d["vsum"], dtype=float)
+            anchor = tuple(float(x) for x in d["anchor"])
+            if (count.shape != self._count.shape or sq.shape != count.shape
+                    or vsum.shape != count.shape or not np.all(np.isfinite(vsum))
+                    or d["grid"] != self.grid.tolist() or d["bin_width"] != BIN_WIDTH
+                    or len(anchor) != 2 or not np.all(np.isfinite(count))
+                    or not np.all(np.isfinite(sq)) or not all(map(math.isfinite, anchor))):
+                raise ValueError("non-finite or misshapen statistics")
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{self.path}: cannot restore the uncertainty estimate ({exc})") \
                 from None
-        s = self.settings
-        self._kf.x = np.array([[float(np.clip(m, s.m_min, s.m_max))],
-                               [float(np.clip(b, s.b_min, s.b_max))]])
-        self._kf.P = P
+        self._count, self._sq, self._vsum = count, sq, vsum
+        self._anchor = anchor  # type: ignore[assignment]
+        self._trusted = bool(d.get("trusted", False))
+        memory = d.get("set_memory_s")
+        self._set_memory = None if memory is None else float(memory)
         self.samples = int(d.get("samples", 0))
         self.outliers = int(d.get("outliers", 0))
+        self._fits = None
         if d.get("frozen"):
             self.freeze(True)
-
-
-def evidence(s_px4: float, s_track: float, include_tracking: bool) -> float:
-    """The measurement ``z`` from PX4's std and the tracking spread (NaN: none)."""
-    if math.isfinite(s_px4):
-        if include_tracking and math.isfinite(s_track):
-            return math.hypot(s_px4, s_track)
-        return s_px4
-    return s_track
-
-
-def tracking_std(errors: np.ndarray) -> float:
-    """Standard deviation (per axis, averaged) of tracking errors ``(n, 3)`` with
-    their mean removed; NaN with fewer than 5 samples."""
-    if len(errors) < 5:
-        return float("nan")
-    return float(np.sqrt(np.mean(np.var(errors, axis=0))))

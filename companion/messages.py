@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,13 @@ from companion.config import Config
 from companion.frames import trajectory_to_enu
 from rota.errors import InputError
 from rota.schema import VERSION, TrajectoryMessage, trajectory_from_dict
-from rota.trajectory import BSplineTrajectory, SampledTrajectory, Trajectory, Window
+from rota.trajectory import (
+    BSplineTrajectory,
+    PolynomialTrajectory,
+    SampledTrajectory,
+    Trajectory,
+    Window,
+)
 from rota.voxelmap import VoxelMap
 
 STATUS = "rota/status"
@@ -29,6 +36,12 @@ REPLY = "rota/reply"
 CONFIG = "rota/config"
 COMMANDS = ("arm", "disarm", "takeoff", "start", "hold", "land", "abort")
 MAX_DURATION_S = 3600.0
+MAX_ID_CHARS = 128
+#: JSON values a trajectory message may hold per trajectory point (p, v, a, t and
+#: brackets of a sample; 3 x 16 coefficients of a degree-15 polynomial segment are
+#: counted as 16 points)
+ITEMS_PER_POINT = 16
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 
 
 class Rejected(ValueError):
@@ -45,14 +58,30 @@ class Incoming:
     stamp: float | None
 
 
-def decode(payload: bytes, what: str) -> Any:
+def decode(payload: bytes, what: str, max_depth: int = 16,
+           max_items: int | None = None) -> Any:
+    """JSON ``payload`` as Python objects. Nesting depth and the number of values
+    are checked on the raw bytes first (strings blanked, then brackets and commas
+    counted), so nothing large is built from a message over its caps."""
+    shape = _STRING.sub(b'""', payload)
+    b = np.frombuffer(shape, dtype=np.uint8)
+    opens = (b == ord("[")) | (b == ord("{"))
+    closes = (b == ord("]")) | (b == ord("}"))
+    if b.size and int(np.cumsum(opens.astype(np.int32) - closes).max()) > max_depth:
+        raise Rejected(f"{what}: nested deeper than {max_depth} levels")
+    items = int(np.count_nonzero(b == ord(","))) + int(np.count_nonzero(opens))
+    if max_items is not None and items > max_items:
+        raise Rejected(f"{what}: {items} values is over the cap of {max_items}")
     try:
         return json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise Rejected(f"{what}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise Rejected(f"{what}: nested too deeply") from None
 
 
-def _check_age(stamp: float | None, cfg: Config, what: str, now: float | None) -> None:
+def check_age(stamp: float | None, cfg: Config, what: str, now: float | None = None) -> None:
+    """Reject a message stamped more than ``max_message_age_s`` ago (or ahead)."""
     if stamp is None:
         return
     age = (time.time() if now is None else now) - stamp
@@ -64,31 +93,69 @@ def _check_age(stamp: float | None, cfg: Config, what: str, now: float | None) -
 
 
 def _points(traj: Trajectory) -> int:
+    """Size of a trajectory in points: control points, samples, or polynomial
+    coefficients per axis (segments x (degree + 1))."""
     base = traj.base if isinstance(traj, Window) else traj
     if isinstance(base, BSplineTrajectory):
         return len(base.control_points)
     if isinstance(base, SampledTrajectory):
         return len(base.t)
-    return int(np.asarray(getattr(base, "durations", [])).size)
+    if isinstance(base, PolynomialTrajectory):
+        return int(base.coefficients.shape[0] * base.coefficients.shape[-1])
+    return 0
+
+
+def _precheck_trajectory(raw: Any, cfg: Config) -> None:
+    """Counts of the raw message, before any array is built."""
+    if not isinstance(raw, dict):
+        return  # trajectory_from_dict names the problem
+    cap = cfg.safety.max_trajectory_points
+    for name in ("control_points", "t", "durations"):
+        value = raw.get(name)
+        if isinstance(value, list) and len(value) > cap:
+            raise Rejected(f"trajectory: {name}: {len(value)} entries is over the cap "
+                           f"of {cap}")
+    coeffs = raw.get("coefficients")
+    if isinstance(coeffs, list) and coeffs and isinstance(coeffs[0], list) and coeffs[0] \
+            and isinstance(coeffs[0][0], list):
+        degree = len(coeffs[0][0]) - 1
+        if degree > cfg.inputs.max_polynomial_degree:
+            raise Rejected(f"trajectory: coefficients: degree {degree} is over the cap of "
+                           f"{cfg.inputs.max_polynomial_degree}")
+    ident = raw.get("id")
+    if isinstance(ident, str) and len(ident) > MAX_ID_CHARS:
+        raise Rejected(f"trajectory: id: {len(ident)} characters is over {MAX_ID_CHARS}")
 
 
 def parse_trajectory(payload: bytes, cfg: Config, now: float | None = None) -> Incoming:
     """Decode and validate a ``rota/trajectory`` payload; the result is in ENU."""
-    raw = decode(payload, "trajectory")
+    raw = decode(payload, "trajectory", cfg.inputs.max_json_depth,
+                 ITEMS_PER_POINT * cfg.safety.max_trajectory_points + 1024)
+    _precheck_trajectory(raw, cfg)
     try:
         msg: TrajectoryMessage = trajectory_from_dict(raw)
     except InputError as exc:
         raise Rejected(f"trajectory: {exc}") from None
     frame = msg.frame if "frame" in raw else cfg.safety.input_frame
     what = f"trajectory {msg.id!r}" if msg.id else "trajectory"
-    _check_age(msg.stamp, cfg, what, now)
+    return check_trajectory(replace(msg, frame=frame), cfg, what, now)
+
+
+def check_trajectory(msg: TrajectoryMessage, cfg: Config, what: str,
+                     now: float | None = None) -> Incoming:
+    """The checks every trajectory passes, whatever format it came in: stamp and
+    age, size, duration, planned speed and geofence; the result is in ENU."""
+    if msg.stamp is None and cfg.safety.require_stamp:
+        raise Rejected(f"{what}: no stamp (UNIX seconds); the service orders trajectories "
+                       "by stamp ([safety] require_stamp = false if the planner has no clock)")
+    check_age(msg.stamp, cfg, what, now)
     if _points(msg.trajectory) > cfg.safety.max_trajectory_points:
         raise Rejected(f"{what}: too many points ({_points(msg.trajectory)} > "
                        f"{cfg.safety.max_trajectory_points})")
     if msg.trajectory.duration > MAX_DURATION_S:
         raise Rejected(f"{what}: duration {msg.trajectory.duration:.0f} s is over "
                        f"{MAX_DURATION_S:.0f} s")
-    traj = trajectory_to_enu(msg.trajectory, frame)
+    traj = trajectory_to_enu(msg.trajectory, msg.frame)
     tau = np.linspace(*traj.domain, 2001)
     p, v, _ = traj.evaluate(tau)
     speed = float(np.linalg.norm(v, axis=1).max())
@@ -102,12 +169,16 @@ def parse_trajectory(payload: bytes, cfg: Config, now: float | None = None) -> I
         raise Rejected(f"{what}: leaves the geofence at tau={tau[i]:.2f} s, position "
                        f"{np.round(p[i], 2).tolist()} (ENU; fence {lo.tolist()} to "
                        f"{hi.tolist()})")
-    return Incoming(msg.id, traj, frame, msg.stamp)
+    return Incoming(msg.id, traj, msg.frame, msg.stamp)
 
 
 def parse_map(payload: bytes, cfg: Config, now: float | None = None) -> VoxelMap:
     """Decode and validate a ``rota/map`` payload (ENU)."""
-    raw = decode(payload, "map")
+    cap = cfg.inputs.max_map_voxels
+    raw = decode(payload, "map", cfg.inputs.max_json_depth, 4 * cap + 1024)
+    occupied = raw.get("occupied") if isinstance(raw, dict) else None
+    if isinstance(occupied, list) and len(occupied) > cap:
+        raise Rejected(f"map: occupied: {len(occupied)} voxels is over the cap of {cap}")
     try:
         vmap = VoxelMap.from_dict(raw)
     except InputError as exc:
@@ -115,7 +186,7 @@ def parse_map(payload: bytes, cfg: Config, now: float | None = None) -> VoxelMap
     stamp = raw.get("stamp")
     if stamp is not None and (not isinstance(stamp, int | float) or not math.isfinite(stamp)):
         raise Rejected("map: stamp: must be a finite number (UNIX seconds)")
-    _check_age(stamp, cfg, "map", now)
+    check_age(stamp, cfg, "map", now)
     return vmap
 
 

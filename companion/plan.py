@@ -53,6 +53,9 @@ class Plan:
         result: the re-timed trajectory (ENU).
         t0: clock time (s) at which the plan's time 0 happens.
         offset: position gap (ENU) at takeover, faded out over ``blend_s``.
+        blend_t0: clock time the fade starts (the takeover; None: ``t0``). A
+            takeover on a tick later than ``t0`` then still starts from the full
+            gap, so its first setpoint is exactly the last one commanded.
     """
 
     id: str
@@ -60,13 +63,18 @@ class Plan:
     t0: float
     offset: FloatArray = field(default_factory=lambda: np.zeros(3))
     blend_s: float = 1.0
+    blend_t0: float | None = None
+
+    @property
+    def _blend_start(self) -> float:
+        return self.t0 if self.blend_t0 is None else self.blend_t0
 
     @property
     def end_time(self) -> float:
         return self.t0 + self.result.duration
 
     def finished(self, now: float) -> bool:
-        return now >= self.end_time and now >= self.t0 + self.blend_s
+        return now >= self.end_time and now >= self._blend_start + self.blend_s
 
     def progress(self, now: float) -> float:
         """Share of the plan's duration flown, 0..1."""
@@ -76,7 +84,7 @@ class Plan:
     def command(self, now: float) -> Command:
         sp = self.result.sample(max(now - self.t0, 0.0))
         p, v, a = sp.position[0], sp.velocity[0], sp.acceleration[0]
-        x = float(np.clip((now - self.t0) / self.blend_s, 0.0, 1.0))
+        x = float(np.clip((now - self._blend_start) / self.blend_s, 0.0, 1.0))
         if np.any(self.offset) and x < 1.0:
             w = 1 - x**3 * (10 - 15 * x + 6 * x * x)  # smootherstep from 1 to 0
             dw = -30 * x * x * (1 - x) ** 2 / self.blend_s
@@ -89,9 +97,18 @@ class Plan:
 _PEAK_DDW = 10 / np.sqrt(3)
 
 
+#: Peak |d w / dx| of the smootherstep (at x = 1/2).
+_PEAK_DW = 30 / 16
+
+
 def blend_time(gap: float, accel_budget: float = 0.5, minimum: float = 0.5) -> float:
     """Blend duration (s) that fades a ``gap`` (m) with at most ``accel_budget`` m/s^2."""
     return max(minimum, float(np.sqrt(_PEAK_DDW * gap / accel_budget)))
+
+
+def blend_speed(gap: float) -> float:
+    """The largest velocity (m/s) a takeover blend of ``gap`` (m) adds to the plan's."""
+    return _PEAK_DW * gap / blend_time(gap)
 
 
 @dataclass(frozen=True)

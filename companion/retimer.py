@@ -8,19 +8,19 @@ from __future__ import annotations
 
 import asyncio
 import json
-import multiprocessing
-import os
 import time
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
 import numpy as np
 
+from companion.ros2.encode import retimed_cdr
+from companion.ros2.settings import Ros2Settings
 from companion.stitch import StitchError, join
+from companion.worker import Worker
+from rota import warm_up
 from rota.braking import BrakingParams
 from rota.chance import ChanceParams, UncertaintyModel
-from rota.problem import Limits, RetimeInput
+from rota.problem import Limits, RetimeInput, SolverSettings
 from rota.result import RetimeResult
 from rota.retime import retime
 from rota.robust import Safety
@@ -44,7 +44,9 @@ class ReplanJob:
     braking: BrakingParams
     take_position: np.ndarray | None = None  # commanded state at takeover; None: from rest
     take_velocity: np.ndarray | None = None
-    stitch_tolerance: float = 0.5
+    stitch_tolerance: float = 1.0
+    solver_max_iter: int = 200
+    ros2: Ros2Settings | None = None  # also build the ROS 2 message of the result
 
 
 @dataclass(frozen=True)
@@ -53,10 +55,21 @@ class ReplanOutcome:
     seconds: float
     payload: bytes  # the rota/result message, b"" when rejected before re-timing
     rejected: str = ""  # why the trajectory cannot take over (stitching)
+    ros2_payload: bytes = b""  # the result as a ROS 2 message (CDR), if asked for
 
 
 _MAP: VoxelMap | None = None  # the worker's current map
-WORKER_NICE = 10  # the worker runs at a lower CPU priority than the stream
+#: Compiling every kernel with an empty cache takes about 11 s on a 2-core machine.
+WARM_UP_TIMEOUT_S = 300.0
+
+
+def _start(vmap: VoxelMap | None) -> float:
+    """A new worker: compile (or load from the cache) every solver kernel and run
+    it once, so the first replan is as fast as the next; take the map. Returns
+    the seconds the warm-up took."""
+    seconds = warm_up()
+    _set_map(vmap)
+    return seconds
 
 
 def _set_map(vmap: VoxelMap | None) -> bool:
@@ -77,60 +90,55 @@ def _replan(job: ReplanJob) -> ReplanOutcome:
     safety = None if _MAP is None else Safety(map=_MAP, uncertainty=job.uncertainty,
                                               chance=job.chance, braking=job.braking)
     result = retime(RetimeInput(trajectory=traj, limits=job.limits, smoothness=job.smoothness,
-                                dtau=job.dtau, start_velocity=v0, safety=safety))
+                                dtau=job.dtau, start_velocity=v0, safety=safety,
+                                solver=SolverSettings(max_iter=job.solver_max_iter)))
     seconds = time.perf_counter() - start
     msg = TrajectoryMessage(traj, id=job.id, frame="ENU", stamp=job.stamp)
     payload = json.dumps(result_to_dict(result, msg), allow_nan=False).encode()
-    return ReplanOutcome(result, seconds, payload)
+    ros2 = b""
+    if job.ros2 is not None:  # here, not on the service's loop: it takes ~10 ms
+        try:
+            ros2 = retimed_cdr(result, job.ros2)
+        except Exception:  # noqa: BLE001, S110 - the service goes on without the ROS copy
+            pass
+    return ReplanOutcome(result, seconds, payload, ros2_payload=ros2)
 
 
 class Retimer:
-    """One worker process. ``await retimer.replan(job, timeout_s)``."""
+    """The re-time worker. ``await retimer.replan(job, timeout_s)``."""
 
     def __init__(self) -> None:
-        self._pool: ProcessPoolExecutor | None = None
         self._map: VoxelMap | None = None
+        self.worker = Worker("re-time", on_spawn=self._give_map)
+        self._warm: object = None  # the process pool that was warmed
+        self._warming = asyncio.Lock()
 
-    def _ensure(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            # spawn: the parent runs Zenoh and MAVSDK threads, which fork would copy badly
-            # nice 10: the setpoint stream is time-critical, the solve is not
-            self._pool = ProcessPoolExecutor(max_workers=1,
-                                             mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=os.nice, initargs=(WORKER_NICE,))
-            if self._map is not None:
-                self._pool.submit(_set_map, self._map)
-        return self._pool
+    def _give_map(self, pool) -> None:  # noqa: ANN001 - a fresh process gets the current map
+        if self._map is not None:
+            pool.submit(_set_map, self._map)
 
-    async def start(self) -> None:
-        loop = asyncio.get_running_loop()
-        await loop.run_in_executor(self._ensure(), _set_map, self._map)
+    async def start(self) -> float:
+        """Start (or refresh) the worker, warm; the warm-up's seconds. The numba
+        cache lives in ``$ROTA_CACHE_DIR``, systemd's ``$CACHE_DIRECTORY`` or
+        ``~/.cache/rota`` (:func:`rota.warm_up`)."""
+        async with self._warming:
+            seconds = await self.worker.call(WARM_UP_TIMEOUT_S, _start, self._map)
+            self._warm = self.worker.pool()
+            return seconds
 
     async def set_map(self, vmap: VoxelMap | None) -> None:
         """Hand the worker a new map (jobs after this one use it)."""
         self._map = vmap
-        loop = asyncio.get_running_loop()
-        await loop.run_in_executor(self._ensure(), _set_map, vmap)
+        await self.worker.call(60.0, _set_map, vmap)
 
     async def replan(self, job: ReplanJob, timeout_s: float) -> ReplanOutcome:
-        """Raises TimeoutError after ``timeout_s`` (the worker is then restarted, so
-        a runaway solve cannot block the next one)."""
-        loop = asyncio.get_running_loop()
-        future = loop.run_in_executor(self._ensure(), _replan, job)
-        try:
-            return await asyncio.wait_for(future, timeout_s)
-        except (TimeoutError, BrokenProcessPool):
-            self._restart()
-            raise TimeoutError(f"re-time did not finish within {timeout_s:.2f} s") from None
-
-    def _restart(self) -> None:
-        pool, self._pool = self._pool, None
-        if pool is not None:
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.kill()
-            pool.shutdown(wait=False, cancel_futures=True)
+        """Raises TimeoutError after ``timeout_s``, WorkerDied if the worker dies
+        (either way it is restarted, so a runaway solve cannot block the next). A
+        restarted worker is warmed first: its compile-and-import time never counts
+        against ``timeout_s`` (it would time out, be restarted, and so on)."""
+        if self.worker._pool is None or self.worker._pool is not self._warm:
+            await self.start()
+        return await self.worker.call(timeout_s, _replan, job)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        self.worker.close()

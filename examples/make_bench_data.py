@@ -1,4 +1,4 @@
-"""Regenerate the benchmark data in rota/data/ (paper Table II, issue #4).
+"""Regenerate the benchmark data in rota/data/ (paper Table II).
 
 * ``bench_forest_map.json``: the occupancy map (rota/map v1, 0.1 m voxels) of a
   32 m x 32 m forest at the paper's middle density 0.043 trees/m^2

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rota.errors import InputError
+from rota.jit import kernels
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -133,14 +134,6 @@ def _array(value: ArrayLike, name: str, shape: tuple[int, ...], allow_nan: bool 
     return arr
 
 
-def _runs(mask: BoolArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Start and end (inclusive) indices of the runs of True in ``mask``."""
-    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
-    starts = np.flatnonzero(d == 1)
-    ends = np.flatnonzero(d == -1) - 1
-    return starts, ends
-
-
 def refine_intervals(
     intervals: list[tuple[float, float]] | tuple[tuple[float, float], ...],
     min_interval: float,
@@ -197,15 +190,29 @@ def find_braking_zones(
         raise InputError(f"distance[{int(np.argmax(dist < 0))}]", "must be >= 0")
     obst = _array(obstacle, "obstacle", (n, 3), allow_nan=True)
 
-    has = np.isfinite(obst).all(axis=1) & np.isfinite(dist)
-    ahead = np.einsum("ij,ij->i", np.where(has[:, None], obst - pos, 0.0), vel) >= 0.0
-    mask = has & (dist <= params.d_th) & ahead
-    if params.horizon_length is not None:
-        seg = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-        arclen = np.concatenate(([0.0], np.cumsum(seg)))
-        mask &= arclen <= params.horizon_length
+    return zones_of(t, pos, vel, dist.copy(), obst.copy(), params)
 
-    starts, ends = _runs(mask)
+
+def zones_of(t: FloatArray, pos: FloatArray, vel: FloatArray, dist: FloatArray,
+             obst: FloatArray, params: BrakingParams) -> BrakingZones:
+    """:func:`find_braking_zones` on checked arrays; ``dist`` and ``obst`` become the
+    result's (read-only) arrays, not copied."""
+    mask = np.empty(t.shape[0], dtype=bool)
+    starts, ends = kernels().braking_points(pos, vel, dist, obst, params.d_th,
+                                            horizon_of(params), mask)
+    return zones_from(t, mask, starts, ends, dist, obst, params)
+
+
+def horizon_of(params: BrakingParams) -> float:
+    return np.inf if params.horizon_length is None else params.horizon_length
+
+
+def zones_from(t: FloatArray, mask: BoolArray, starts: NDArray[np.int64],
+               ends: NDArray[np.int64], dist: FloatArray, obst: FloatArray,
+               params: BrakingParams) -> BrakingZones:
+    """The zones of the braking points ``mask`` (runs ``starts`` to ``ends``, both
+    inclusive): raw intervals, refined ones (Alg. 1 line 17) and their mask."""
+    n = t.shape[0]
     raw = tuple((float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True))
     duration = float(t[-1] - t[0])
     min_iv = (
@@ -221,12 +228,7 @@ def find_braking_zones(
     refined = refine_intervals(raw, min_iv, gap)
     refined_mask = np.zeros(n, dtype=bool)
     for a, b in refined:
-        refined_mask |= (t >= a) & (t <= b)
-
-    for arr in (mask, refined_mask):
+        refined_mask[np.searchsorted(t, a):np.searchsorted(t, b, side="right")] = True
+    for arr in (mask, refined_mask, dist, obst):
         arr.setflags(write=False)
-    dist_out = dist.copy()
-    obst_out = obst.copy()
-    dist_out.setflags(write=False)
-    obst_out.setflags(write=False)
-    return BrakingZones(mask, refined, refined_mask, obst_out, dist_out, raw)
+    return BrakingZones(mask, refined, refined_mask, obst, dist, raw)

@@ -34,10 +34,24 @@ With the velocity ``v * u`` (``u`` the unit tangent of the path), requiring
 ``Pr <= Delta`` is ``a^T Sigma^r a <= ((|d| - 1) / z)^2``, ``z = Phi^{-1}(1 -
 Delta)``. The left side is a piecewise quadratic, non-decreasing function of
 ``v`` (pieces start where an axis' linear part exceeds ``floor``), so the
-largest admissible ``v`` is found in closed form, vectorised over the samples
-(:func:`speed_limits`). It depends only on the position, the path direction
-and the obstacle - not on the speed - so it enters the SOCP as a fixed
-per-sample bound ``|sigma'(tau_i)|^2 beta_i <= v_lim_i^2``.
+largest admissible ``v`` is found in closed form, in one compiled pass over the
+samples (:func:`speed_limits`, :mod:`rota.kernels.chance`). It depends only on
+the position, the path direction and the obstacle - not on the speed - so it
+enters the SOCP as a fixed per-sample bound ``|sigma'(tau_i)|^2 beta_i <= v_lim_i^2``.
+
+Error memory
+------------
+Eq. 15 ties the uncertainty at a sample to the speed *at that sample*. The flown
+deviation remembers: the position loop tracks the estimate through a low-pass,
+so the deviation at a braking point is a weighted average of the estimation
+errors of the last second or two, made at the speeds flown then
+(``docs/safety-model.md`` derives it from a first-order tracking loop). With
+``UncertaintyModel(memory_s=T)`` the speed limit ``L_i`` of a braking point also
+holds over the path length ``L_i * T`` before it (:func:`memory_limits`): the
+vehicle is already at ``L_i`` for the last ``T`` seconds before it reaches the
+point, so every error that shaped its deviation there was made at a speed the
+constraint allows. ``T = 0`` is the paper's model. The result is still one fixed
+cap per node, so the problem stays the same convex program.
 
 Point robot: ``semi_axes = (0, 0, 0)`` is accepted and means a point (a ball of
 radius 0): margin ``|p - o|`` in metres, no scaling. This reproduces the
@@ -55,9 +69,18 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr, ndtri
 
 from rota.errors import InputError
+from rota.jit import kernels
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+#: The memory time the flight service uses unless configured (s): chosen from the
+#: collision experiment by a rule fixed in advance (docs/table1.md, "Memory time").
+DEFAULT_MEMORY_S = 1.0
+
+#: Largest memory time accepted (s): beyond this the braking would start so early that
+#: the model (a position loop of about a second) no longer describes it.
+MAX_MEMORY_S = 10.0
 
 
 def _number(value: object, name: str, *, lo: float | None = None, lo_open: bool = False,
@@ -113,17 +136,25 @@ class UncertaintyModel:
     ``>= 0`` (more speed never means less uncertainty) and ``floor >= 0`` keeps
     the std non-negative. A separate object so that learned ``m``, ``b`` can
     replace it (the flight service's estimator does).
+
+    ``memory_s`` (T, seconds): how long the vehicle's deviation remembers the
+    speed flown (see the module docstring and :func:`memory_limits`). 0: the
+    paper's memoryless model; the speed limit of a braking point then applies at
+    that point only.
     """
 
     m: float = 0.2
     b: float = -0.1
     floor: float = 0.0
     per_axis: bool = False
+    memory_s: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "m", _number(self.m, "m", lo=0.0))
         object.__setattr__(self, "b", _number(self.b, "b"))
         object.__setattr__(self, "floor", _number(self.floor, "floor", lo=0.0))
+        object.__setattr__(self, "memory_s", _number(self.memory_s, "memory_s", lo=0.0,
+                                                     hi=MAX_MEMORY_S))
         if not isinstance(self.per_axis, bool):
             raise InputError("per_axis", f"must be true or false, got {self.per_axis!r}")
 
@@ -307,7 +338,7 @@ def speed_limits(
     vehicle: the limit is then ``v_max`` or infeasible). The constraint
     ``sum_k w_k s_k(v)^2 <= R^2``, ``R = margin / z``, is piecewise quadratic in
     ``v`` with pieces split at ``(floor - b) / (m |u_k|)``; each piece is solved
-    in closed form for all samples at once. The result is clamped to
+    in closed form (compiled, one pass over the samples). The result is clamped to
     ``[v_floor, v_max]``; samples without an obstacle (NaN rows) get ``v_max``.
 
     The limit depends on position, direction and obstacle only, so it is a fixed
@@ -315,62 +346,32 @@ def speed_limits(
     """
     model, params, pos, u, obs = _inputs(p, "p", direction, "direction", obstacle, model,
                                          params)
+    return limits_of(pos, u, obs, model, params)
+
+
+def limits_of(pos: FloatArray, direction: FloatArray, obstacle: FloatArray,
+              model: UncertaintyModel, params: ChanceParams) -> SpeedLimits:
+    """:func:`speed_limits` on arrays already checked (``(n, 3)`` float, finite
+    except NaN obstacle rows): the compiled closed form
+    (:func:`rota.kernels.chance.chance_limits`), in ``x = m v`` so that a tiny or
+    zero ``m`` cannot under- or overflow the quadratic."""
     n = pos.shape[0]
-    un = np.linalg.norm(u, axis=1)
-    u = u / np.where(un > 0.0, un, 1.0)[:, None]
-
-    margin, w, obs_var, has = _geometry(pos, obs, params)
-    z = params.z
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r2 = np.where(margin > 0.0, (margin / z) ** 2 if z > 0 else np.inf, -np.inf)
-    rem = r2 - obs_var  # budget for sum_k w_k s_k(v)^2
-
-    # Work in x = m * v (so tiny or zero m cannot under/overflow the quadratic):
-    # s_k = max(fl, |u_k| x + b); then v = x / m.
-    m, b, fl = model.m, model.b, model.floor
-    # Speed along each axis per unit speed: |u_k| (per axis) or 1 (speed model).
-    g = np.abs(u) if model.per_axis else np.where(un[:, None] > 0.0, 1.0, 0.0) * np.ones(3)
-    s_inactive = max(fl, b)
-
-    def f(x: FloatArray) -> FloatArray:
-        s = np.maximum(fl, g * x[:, None] + b)
-        return np.einsum("ij,ij->i", w, s * s)
-
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        bp = np.where(g > 0.0, np.maximum(0.0, (fl - b) / g), np.inf)
-    edges = np.concatenate([np.zeros((n, 1)), np.sort(bp, axis=1), np.full((n, 1), np.inf)], 1)
-
-    best = np.full(n, -np.inf)
-    for j in range(4):  # the (at most) four quadratic pieces, all samples at once
-        lo, hi = edges[:, j], edges[:, j + 1]
-        live = np.isfinite(lo) & (hi > lo) if j > 0 else np.ones(n, bool)
-        active = (bp <= lo[:, None]) & (g > 0.0)
-        wa = np.where(active, w, 0.0)
-        qa = np.einsum("ij,ij->i", wa, g * g)
-        qb = 2.0 * b * np.einsum("ij,ij->i", wa, g)
-        qc = b * b * wa.sum(axis=1) + s_inactive**2 * np.where(active, 0.0, w).sum(axis=1)
-        f_lo = f(np.where(live, lo, 0.0))
-        hi_fin = np.isfinite(hi)
-        f_hi = np.where(hi_fin, f(np.where(hi_fin, hi, 0.0)), np.inf)
-        ok_lo = live & (f_lo <= rem)
-        whole = ok_lo & hi_fin & (f_hi <= rem)
-        # largest root of qa x^2 + qb x + (qc - rem) = 0 (qa > 0), cancellation-free form
-        c0 = qc - rem
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            sq = np.sqrt(np.maximum(qb * qb - 4.0 * qa * c0, 0.0))
-            root = np.where(qb >= 0.0, -2.0 * c0 / (qb + sq), (-qb + sq) / (2.0 * qa))
-        root = np.where(qa > 0.0, root, np.inf)  # constant piece: unbounded
-        root = np.clip(np.nan_to_num(root, nan=-np.inf, posinf=np.inf), lo, hi)
-        cand = np.where(whole, hi, np.where(ok_lo, root, -np.inf))
-        best = np.maximum(best, cand)
-
-    infeasible = has & ~(best >= 0.0)
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        v_star = best / m if m > 0.0 else np.full(n, np.inf)
-    unclamped = np.where(has, np.where(infeasible, np.nan, v_star), np.inf)
-    clamped = np.clip(np.nan_to_num(unclamped, nan=0.0), params.v_floor, params.v_max)
-    limit = np.where(has, np.where(infeasible, params.v_floor, clamped), params.v_max)
+    limit, unclamped, infeasible = np.empty(n), np.empty(n), np.empty(n, dtype=bool)
+    kernels().chance_limits(
+        np.ascontiguousarray(pos, dtype=float), np.ascontiguousarray(direction, dtype=float),
+        np.ascontiguousarray(obstacle, dtype=float), *kernel_args(model, params), limit,
+        unclamped, infeasible)
     return SpeedLimits(limit, unclamped, infeasible, params.v_floor)
+
+
+def kernel_args(model: UncertaintyModel, params: ChanceParams) -> tuple:
+    """The model and parameters as :func:`rota.kernels.chance.chance_limits` takes
+    them: ``1 / semi-axes`` (ones for a point robot), point robot, the obstacle's
+    per-axis variance, ``z``, ``m``, ``b``, floor, per axis, ``v_floor``, ``v_max``."""
+    point = params.point_robot
+    inv = np.ones(3) if point else 1.0 / np.asarray(params.semi_axes)
+    return (inv, point, np.asarray(params.obstacle_std) ** 2, params.z, model.m, model.b,
+            model.floor, model.per_axis, params.v_floor, params.v_max)
 
 
 def monte_carlo_collision_probability(
@@ -414,3 +415,44 @@ def monte_carlo_collision_probability(
         hit = (((robot - ob) * inv) ** 2).sum(axis=2) <= 1.0
         out[sl] = hit.mean(axis=1)
     return np.where(has, out, 0.0)
+
+
+def memory_limits(arclength: ArrayLike, limit: ArrayLike, memory_s: float) -> FloatArray:
+    """Speed caps with error memory: node ``i``'s limit ``L_i`` also holds at every node
+    ``j <= i`` with ``s_j >= s_i - L_i * T`` (``s`` the path length, ``T = memory_s``),
+    and at the last node before that stretch, so the stretch is capped end to end.
+
+    A vehicle that flies no faster than ``L_i`` over the ``L_i * T`` metres before node
+    ``i`` needs at least ``T`` seconds for them, so it has been at ``L_i`` or slower for
+    the whole of the last ``T`` seconds when it reaches the node: the estimation errors
+    that shaped its deviation there were all made at speeds the chance constraint allows
+    (``docs/safety-model.md``). Caps stay per node, so the re-time stays the same convex
+    problem; ``inf`` entries (no limit) impose nothing. ``T = 0`` returns ``limit``.
+
+    Args:
+        arclength: ``(n,)`` non-decreasing path length of the nodes (m).
+        limit: ``(n,)`` per-node speed limits (m/s, ``inf`` = none).
+        memory_s: ``T`` (s), ``>= 0``.
+
+    Returns:
+        ``(n,)`` caps, never above ``limit``.
+    """
+    s = np.asarray(arclength, dtype=float)
+    lim = np.asarray(limit, dtype=float)
+    if s.ndim != 1 or lim.shape != s.shape:
+        raise InputError("limit", f"must match arclength's shape {s.shape}, got {lim.shape}")
+    if np.any(np.diff(s) < 0) or not np.all(np.isfinite(s)):
+        raise InputError("arclength", "must be finite and non-decreasing")
+    if np.any(np.isnan(lim)) or np.any(lim < 0):
+        raise InputError("limit", "must be >= 0 (inf for no limit), no NaN")
+    t = _number(memory_s, "memory_s", lo=0.0, hi=MAX_MEMORY_S)
+    return memory_caps(s, lim, t)
+
+
+def memory_caps(arclength: FloatArray, limit: FloatArray, memory_s: float) -> FloatArray:
+    """:func:`memory_limits` on arrays already checked (compiled: a binary search for
+    the start of every limited node's window, then its window; ``O(n w)``)."""
+    out = np.empty(len(limit))
+    kernels().memory_caps(np.ascontiguousarray(arclength, dtype=float),
+                          np.ascontiguousarray(limit, dtype=float), float(memory_s), out)
+    return out

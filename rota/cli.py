@@ -1,26 +1,26 @@
-"""The ``rota`` command line.
+"""rota: re-time planner trajectories with ROTA (Robust Optimal Time Allocation).
 
-Commands (``rota COMMAND --help`` for each):
+Re-time a trajectory message (docs/protocol.md) into a result message, write the
+bundled example, re-time and plot the example, or run the paper's Table II with
+peers (docs/benchmarks.md). "rota COMMAND --help" describes each command.
 
-* ``rota retime IN.json -o OUT.json [--plot OUT.png]``: re-time a trajectory
-  message (``docs/protocol.md``) and write a result message.
-* ``rota example [-o FILE]``: write the bundled example trajectory.
-* ``rota demo [--out DIR]``: re-time the bundled example and plot it.
-* ``rota bench [--out DIR] [--quick] [--repeats N]``: the paper's Table II with
-  peers (``docs/benchmarks.md``).
-
-Exit status: 0 when the optimal re-time was found, 3 when the result is the
-fallback (the result is still written, its ``message`` says why), 4 when the
-path is rejected as unsafe (it passes through an obstacle of ``--map``), 2 for
-bad input (the error names the offending field).
+Exit status: 0 the optimal re-time was found; 1 the command cannot run here (a
+missing optional dependency); 2 bad input (the error names the offending field
+or option); 3 the result is the fallback (still written; its message says why);
+4 the path is rejected as unsafe (it passes through an obstacle of --map);
+130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import threading
+import time
 from importlib import resources
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +37,15 @@ from rota.schema import dump, load, result_to_dict, trajectory_from_dict
 from rota.trajectory import Trajectory
 from rota.voxelmap import VoxelMap
 
-EXIT_OK, EXIT_INPUT, EXIT_FALLBACK, EXIT_REJECTED = 0, 2, 3, 4
+EXIT_OK, EXIT_UNAVAILABLE, EXIT_INPUT, EXIT_FALLBACK, EXIT_REJECTED = 0, 1, 2, 3, 4
+#: Default cap on the size of a re-time: trajectory points, grid nodes
+#: (duration / dtau) and setpoints written (duration x rate); --max-points overrides.
+MAX_POINTS = 100_000
+#: Coordinates beyond this (m) are taken for a unit mix-up.
+MAX_COORDINATE_M = 1e6
+#: Re-times with more grid nodes than this print a progress line.
+PROGRESS_NODES = 3000
+PLOT_FORMATS = (".png", ".svg", ".pdf")
 
 
 def _floats(text: str) -> list[float]:
@@ -128,11 +136,94 @@ def build_input(args: argparse.Namespace, trajectory: Trajectory) -> RetimeInput
                        safety=build_safety(args))
 
 
+def _size(trajectory: Trajectory) -> int:
+    """Points of a trajectory: control points, samples or polynomial segments."""
+    from rota.trajectory import Window
+
+    base = trajectory.base if isinstance(trajectory, Window) else trajectory
+    for name in ("control_points", "t", "durations"):
+        if hasattr(base, name):
+            return len(getattr(base, name))
+    return 0
+
+
+def check_retime_args(args: argparse.Namespace, trajectory: Trajectory) -> None:
+    """Caps and checks before any work: every error names the option."""
+    cap = args.max_points
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
+        raise InputError("--rate", f"must be a positive number of Hz, got {args.rate:g}")
+    if args.plot and Path(args.plot).suffix.lower() not in PLOT_FORMATS:
+        raise InputError("--plot", f"{args.plot}: use a .png, .svg or .pdf file name")
+    if not (math.isfinite(args.dtau) and args.dtau > 0):
+        raise InputError("--dtau", f"must be positive, got {args.dtau:g}")
+    points = _size(trajectory)
+    if points > cap:
+        raise InputError("trajectory", f"{points} points is over the cap of {cap} "
+                         "(--max-points N to allow more; memory and time grow with it)")
+    lo, hi = trajectory.domain
+    p = trajectory.position(np.linspace(lo, hi, 201))
+    if not np.all(np.isfinite(p)) or np.abs(p).max() > MAX_COORDINATE_M:
+        raise InputError("trajectory", f"positions beyond {MAX_COORDINATE_M:g} m (or not "
+                         "finite): wrong units?")
+    nodes = (hi - lo) / args.dtau
+    if nodes > cap:
+        raise InputError("--dtau", f"{nodes:.0f} grid nodes (duration {hi - lo:.1f} s / dtau "
+                         f"{args.dtau:g} s) is over the cap of {cap} (--max-points N to allow "
+                         "more)")
+    if args.rate is not None:
+        # the re-timed duration is not known yet: assume up to 10x the planned one
+        samples = 10 * (hi - lo) * args.rate
+        if samples > cap:
+            raise InputError("--rate", f"up to {samples:.0f} setpoints at {args.rate:g} Hz is "
+                             f"over the cap of {cap} (--max-points N to allow more)")
+
+
+class Progress:
+    """A line on stderr while a long re-time runs: what it is and the time spent."""
+
+    def __init__(self, what: str) -> None:
+        self.what, self._stop = what, threading.Event()
+        self._t0 = time.monotonic()
+        self._tty = sys.stderr.isatty()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        every = 1.0 if self._tty else 10.0
+        while not self._stop.wait(every):
+            line = f"rota retime: {self.what}: {time.monotonic() - self._t0:.0f} s"
+            print(("\r" + line) if self._tty else line, end="" if self._tty else "\n",
+                  file=sys.stderr, flush=True)
+
+    def __enter__(self) -> Progress:
+        print(f"rota retime: {self.what} ...", file=sys.stderr, flush=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        end = "\n" if self._tty else ""
+        print(f"{end}rota retime: {self.what}: done in {time.monotonic() - self._t0:.1f} s",
+              file=sys.stderr, flush=True)
+
+
 def cmd_retime(args: argparse.Namespace) -> int:
     msg = trajectory_from_dict(load(args.input))
+    check_retime_args(args, msg.trajectory)
     inp = build_input(args, msg.trajectory)
-    result = retime(inp)
-    dump(result_to_dict(result, msg, rate_hz=args.rate), args.output)
+    lo, hi = msg.trajectory.domain
+    nodes = int((hi - lo) / args.dtau)
+    if nodes > PROGRESS_NODES:
+        with Progress(f"re-timing {_size(msg.trajectory)} points on {nodes} grid nodes"):
+            result = retime(inp)
+    else:
+        result = retime(inp)
+    out = result_to_dict(result, msg, rate_hz=args.rate)
+    try:
+        dump(out, args.output)
+    except ValueError:  # NaN or inf in the result: never write invalid JSON
+        raise InputError("trajectory", "the re-timed result is not finite (values too "
+                         "large?); nothing written") from None
     print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
           f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""))
     for w in result.warnings:
@@ -182,9 +273,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK if result.ok else EXIT_FALLBACK
 
 
+def package_version() -> str:
+    try:
+        return version("rota-companion")
+    except PackageNotFoundError:  # pragma: no cover - a source tree
+        return "unknown"
+
+
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rota", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    doc = (__doc__ or "").split("\n\n")
+    parser = argparse.ArgumentParser(prog="rota", description=doc[1], epilog=doc[2],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("retime", help="re-time a trajectory message (JSON)")
     p.add_argument("input", help="rota/trajectory JSON file")
@@ -192,6 +293,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="also write a plot (PNG/SVG/PDF)")
     p.add_argument("--rate", type=float, default=None,
                    help="also write setpoints sampled at this rate (Hz)")
+    p.add_argument("--max-points", type=int, default=MAX_POINTS,
+                   help=f"refuse larger work: trajectory points, grid nodes (duration / "
+                   f"dtau) or setpoints (duration x rate) (default {MAX_POINTS})")
     add_retime_options(p)
     add_safety_options(p)
     p.set_defaults(func=cmd_retime)
@@ -219,6 +323,13 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"rota {args.command}: {exc}", file=sys.stderr)
         return EXIT_INPUT
+    except ModuleNotFoundError as exc:
+        print(f"rota {args.command}: needs {exc.name}, which is not installed (for rota "
+              "bench: pip install 'rota-companion[bench]')", file=sys.stderr)
+        return EXIT_UNAVAILABLE
+    except KeyboardInterrupt:
+        print(f"rota {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

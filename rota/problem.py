@@ -50,11 +50,22 @@ class Limits:
         return np.asarray(self.a_max, dtype=float)
 
 
+#: The solvers :class:`SolverSettings` can choose (see :mod:`rota.solver`).
+METHODS = ("fast", "clarabel")
+
+
 @dataclass(frozen=True)
 class SolverSettings:
-    """Clarabel settings that matter for ROTA (see :mod:`rota.solver`).
+    """Which solver, and the settings that matter for ROTA (see :mod:`rota.solver`).
 
-    The defaults are the measured fastest settings that still meet the
+    ``method``: ``"fast"`` (default), the compiled interior-point method on beta
+    that exploits the problem's chain structure, which hands over to Clarabel if
+    it reports trouble; or ``"clarabel"``, the SOCP with Clarabel (the
+    reference). ``fast_tol``: the fast solver's tolerance on the duality gap
+    (relative to the objective) and on the residuals. ``max_iter`` applies to
+    both.
+
+    The Clarabel defaults are the measured fastest settings that still meet the
     benchmark's accuracy check (objective within 0.1 % of a 1e-10 reference
     solve, every check point within its limit; see ``docs/benchmarks.md``):
 
@@ -70,6 +81,8 @@ class SolverSettings:
       symbolic KKT work.
     """
 
+    method: str = "fast"
+    fast_tol: float = 1e-9
     tol: float = 1e-6
     max_iter: int = 200
     time_limit: float = 5.0
@@ -78,6 +91,12 @@ class SolverSettings:
     equilibrate: bool = True
     presolve: bool = True
     reuse_symbolic: bool = False
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise InputError("solver.method", f"must be one of {METHODS}, got {self.method!r}")
+        positive(self.fast_tol, "solver.fast_tol")
+        positive(self.tol, "solver.tol")
 
 
 @dataclass(frozen=True)
@@ -152,12 +171,19 @@ class RetimeInput:
             object.__setattr__(self, "speed_limits", lim)
 
 
+#: The grid has at least this many intervals, however short the path is against dtau.
+MIN_INTERVALS = 8
+
+
 def make_grid(trajectory: Trajectory, dtau: float) -> FloatArray:
     """Trajectory-time nodes ``tau_0 .. tau_N`` (paper Eq. 17).
 
-    ``N = ceil(T / dtau)``, and the step is ``T / N`` so the grid ends exactly at
-    the trajectory's end.
+    ``N = ceil(T / dtau)``, at least :data:`MIN_INTERVALS` (a path shorter than a
+    few steps is re-timed on a finer grid: one interval cannot start and stop),
+    and the step is ``T / N`` so the grid ends exactly at the trajectory's end.
     """
     t0, t1 = trajectory.domain
-    n = max(1, int(np.ceil((t1 - t0) / dtau - 1e-9)))
-    return np.linspace(t0, t1, n + 1)
+    n = max(MIN_INTERVALS, int(np.ceil((t1 - t0) / dtau - 1e-9)))
+    tau = np.arange(n + 1) * ((t1 - t0) / n) + t0  # as numpy's linspace, without its overhead
+    tau[-1] = t1
+    return tau

@@ -92,11 +92,22 @@ class RetimeResult:
     def alpha(self) -> FloatArray:
         return self.timemap.alpha
 
+    @property
+    def ends_at_rest(self) -> bool:
+        """True when the re-timed trajectory ends at rest exactly (beta_N = 0, or
+        the path itself stands still at its end)."""
+        if self.timemap.beta[-1] == 0.0:
+            return True
+        _, d1, _ = self.trajectory.evaluate(self.timemap.tau[-1:])
+        return bool(np.all(d1 == 0.0))
+
     def sample(self, t: ArrayLike) -> Setpoints:
         """Position, velocity and acceleration at real times ``t`` (vectorised).
 
         Position is ``sigma(h(t))``, so it lies on the input path; velocity and
-        acceleration follow paper Eqs. 4-5. Times beyond the end hold the end.
+        acceleration follow paper Eqs. 4-5. Times beyond the end hold the end;
+        when it ends at rest (:attr:`ends_at_rest`) from its end on velocity and
+        acceleration are exactly zero.
         """
         tq = np.atleast_1d(np.asarray(t, dtype=float))
         tau, tau_dot, tau_ddot = self.timemap.evaluate(tq)
@@ -104,7 +115,7 @@ class RetimeResult:
         vel = d1 * tau_dot[:, None]
         acc = d1 * tau_ddot[:, None] + d2 * (tau_dot**2)[:, None]
         after = tq >= self.duration
-        if after.any() and np.allclose(self.timemap.beta[-1], 0.0):
+        if after.any() and self.ends_at_rest:
             vel[after] = 0.0
             acc[after] = 0.0
         return Setpoints(tq, tau, p, vel, acc)

@@ -4,13 +4,19 @@ when the optimum cannot be had, the result says why and carries the fallback."""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, replace
+
 import numpy as np
 from numpy.typing import NDArray
 
+from rota.chain import Boundary, ChainProblem, Reach, build, describe, reach
+from rota.checkpoints import STILL, PathSamples, sample_path
+from rota.jit import kernels
+from rota.path import evaluate
 from rota.problem import RetimeInput, make_grid
 from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
 from rota.robust import assess
-from rota.socp import STILL, Boundary, PathSamples, assemble, sample_path
 from rota.solver import SolverStats, solve
 from rota.timemap import TimeMap
 from rota.trajectory import Trajectory
@@ -21,8 +27,9 @@ FloatArray = NDArray[np.float64]
 TANGENT_TOL = 0.05
 #: Relative tolerance when checking the solver's solution against the constraints.
 CHECK_TOL = 1e-3
-#: A limit broken by more than this at an unconstrained check point triggers a re-solve.
-REFINE_TOL = 2e-4
+#: A limit broken by more than this share between check points (speed, or
+#: acceleration on any axis) triggers a re-solve with more check points.
+REFINE_TOL = 5e-4
 #: Solves at most (1 + rounds of constraint generation).
 MAX_ROUNDS = 4
 #: Share of the smallest acceleration limit used to brake a start that is too fast.
@@ -34,32 +41,37 @@ class Infeasible(Exception):
 
 
 def retime(inp: RetimeInput) -> RetimeResult:
-    """Re-time ``inp.trajectory`` optimally (paper Eq. 11 as the SOCP of Sec. III-D).
+    """Re-time ``inp.trajectory`` optimally (paper Eq. 11 on the grid of Eq. 17).
 
     With ``inp.safety`` the speed limit of every grid node also includes the
-    chance-constraint limit in braking zones (Sec. III-B/C).
+    chance-constraint limit in braking zones (Sec. III-B/C). The problem is
+    solved on beta (:mod:`rota.chain`) by the solver ``inp.solver.method``
+    (:mod:`rota.solver`), after a reachability pass that decides feasibility
+    exactly and, at lambda = 0, often the optimum itself.
     """
-    tau = make_grid(inp.trajectory, inp.dtau)
-    _, d1, d2 = inp.trajectory.evaluate(tau)
+    traj = inp.trajectory
+    tau = make_grid(traj, inp.dtau)
+    pos, d1, d2 = evaluate(traj, tau)
     vlim = np.full(len(tau), inp.limits.v_max)
     if inp.speed_limits is not None:
         vlim = np.minimum(vlim, inp.speed_limits)
-    speed = np.linalg.norm(d1, axis=1)
     extras: dict = {}
     warnings: list[str] = []
 
     def fallback(reason: str, stats: SolverStats | None = None,
                  status: str = FALLBACK) -> RetimeResult:
-        timemap = uniform_fallback(inp.trajectory, tau, vlim, inp.limits.a_max_vec)
-        return RetimeResult(status, reason, timemap, inp.trajectory, stats, vlim, extras,
+        timemap = uniform_fallback(traj, tau, vlim, inp.limits.a_max_vec)
+        return RetimeResult(status, reason, timemap, traj, stats, vlim, extras,
                             tuple(warnings))
 
     if inp.safety is not None:
-        seen = assess(inp.trajectory, tau, inp.safety)
+        seen = assess(traj, tau, inp.safety, position=pos, velocity=d1)
         vlim = np.minimum(vlim, seen.speed_limits)
         extras.update(intervals=seen.zones.intervals, braking_mask=seen.zones.mask,
                       obstacle_distance=seen.zones.distance,
-                      nearest_obstacle=seen.zones.nearest, chance_limits=seen.chance.limit)
+                      nearest_obstacle=seen.zones.nearest, chance_limits=seen.chance.limit,
+                      approach_mask=seen.approach,
+                      memory_s=inp.safety.uncertainty.memory_s)
         if seen.outside.any():
             i = int(np.argmax(seen.outside))
             warnings.append(f"the path leaves the map at tau={tau[i]:.2f} s; speed limited to "
@@ -67,60 +79,155 @@ def retime(inp: RetimeInput) -> RetimeResult:
                             f"nothing ({int(seen.outside.sum())} grid nodes)")
         if seen.collision.any():
             return fallback(seen.describe_collision(tau), status=REJECTED)
-    if speed.max() <= STILL:
+    a_max = inp.limits.a_max_vec
+    path = sample_path(traj, tau, vlim, a_max, d1, d2)
+    if not path.moving:
         return fallback("degenerate trajectory: the path does not move (its length is 0)")
-    v0 = float(np.linalg.norm(inp.start_velocity))
+    limit_before = vlim
+    v0 = math.sqrt(sum(x * x for x in inp.start_velocity.tolist()))
     if v0 > vlim[0] * (1 + 1e-9):
-        vlim, note = _brake_from_start(inp, tau, vlim, v0)
-        warnings.append(note)
+        vlim = _brake_from_start(inp, tau, pos, vlim, v0)
+        path = replace(path, vlim=vlim, beta_max=_beta_max(path, vlim))
     try:
-        boundary = _boundary(inp, d1[0], d2[0], d1[-1], vlim[0], vlim[-1])
+        boundary = _boundary(inp, path.d1[0], path.d2[0], path.d1[-1], vlim[0], vlim[-1])
     except Infeasible as exc:
         return fallback(str(exc))
 
-    path = sample_path(inp.trajectory, tau, vlim, inp.limits.a_max_vec)
     rounds = 0
     while True:
         rounds += 1
-        x, stats = solve(assemble(path, inp.smoothness, boundary), inp.solver)
-        if x is None:
-            return fallback(_explain(stats), stats)
-        beta = np.maximum(x[: len(tau)], 0.0)
-        # Constraint generation: a limit broken at a candidate check point that
-        # was not constrained gets its whole interval constrained, then re-solve.
-        v2, acc = path.ratios(beta)
-        bad = ~path.active & ((v2 > 1 + REFINE_TOL) | (acc > 1 + REFINE_TOL))
-        if not bad.any() or rounds == MAX_ROUNDS:
+        problem = build(path, inp.smoothness, boundary)
+        rch = reach(problem, certify=inp.smoothness == 0.0 and inp.solver.method == "fast")
+        if not rch.feasible:
+            return fallback(_infeasible(problem, path, inp, pos))
+        problem = _tighten(problem, rch)
+        if problem is None:
+            return fallback("the limits cannot be met (the problem is infeasible): they "
+                            "force the vehicle to stand still on the way")
+        if rch.exact:
+            beta = rch.greedy
+            stats = SolverStats("Solved", 0, 0.0, 0.0, problem.objective(beta), "reachability")
+        else:
+            beta, stats = solve(problem, inp.solver, start=rch.greedy)
+            if beta is None:
+                return fallback(_explain(stats), stats)
+        # Constraint generation: a limit broken between the check points adds
+        # check points there, then re-solve.
+        seen_limits = audit(traj, path, beta)
+        if seen_limits.more is None or rounds == MAX_ROUNDS:
             break
-        path = path.activate(np.unique(path.pt_interval[bad]))
+        path = path.with_points(traj, *seen_limits.more)
     extras["solve_rounds"] = rounds
-    problem = check_solution(path, beta, boundary)
+    problem_text = check_solution(seen_limits, path, beta, boundary)
     timemap = TimeMap(tau, beta)
-    if problem is None and not np.isfinite(timemap.duration):
-        problem = "the optimal time mapping stops on the way (infinite duration)"
-    if problem is not None:
-        return fallback(f"solver solution rejected: {problem}", stats)
-    return RetimeResult(OPTIMAL, "", timemap, inp.trajectory, stats, vlim, extras,
-                        tuple(warnings))
+    if problem_text is None and not np.isfinite(timemap.duration):
+        problem_text = "the optimal time mapping stops on the way (infinite duration)"
+    if problem_text is not None:
+        return fallback(f"solver solution rejected: {problem_text}", stats)
+    if vlim is not limit_before:
+        warnings.append(_brake_note(inp, path, beta, limit_before, v0))
+    return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, tuple(warnings))
 
 
-def _brake_from_start(inp: RetimeInput, tau: FloatArray, vlim: FloatArray,
-                      v0: float) -> tuple[FloatArray, str]:
+def _beta_max(path: PathSamples, vlim: FloatArray) -> FloatArray:
+    speed2 = np.einsum("ij,ij->i", path.d1, path.d1)
+    moving = speed2 > STILL**2
+    with np.errstate(divide="ignore"):
+        bound = np.where(moving, vlim**2 / np.maximum(speed2, STILL**2), np.inf)
+    cap = float(np.max(path.beta_max[~moving], initial=np.inf))
+    return np.minimum(bound, cap)
+
+
+def _tighten(problem: ChainProblem, rch: Reach) -> ChainProblem | None:
+    """Bounds tightened to the controllable sets (exact); nodes whose set is {0}
+    are fixed at rest. None when two neighbours must both stand still."""
+    free = ~problem.fixed
+    hi = np.where(free, np.minimum(problem.hi, rch.ku), problem.hi)
+    still = free & (hi <= 0.0)
+    fixed, value = problem.fixed, problem.value
+    if still.any():
+        fixed = fixed | still
+        value = np.where(still, 0.0, value)
+        zero = fixed & (value <= 0.0)
+        if np.any(zero[:-1] & zero[1:]):
+            return None
+    return replace(problem, hi=hi, fixed=fixed, value=value)
+
+
+@dataclass(frozen=True, eq=False)
+class Audit:
+    """The limits at a solution (:func:`audit`).
+
+    ``more``: the points ``(interval, fraction)`` between check points where a limit
+    is broken by more than :data:`REFINE_TOL`, or None; ``speed``: the largest speed
+    squared over its limit squared (nodes and check points); ``acc``: the largest
+    acceleration over its limit at the check points, on ``axis`` at check point
+    ``point``.
+    """
+
+    more: tuple[NDArray[np.int64], FloatArray] | None
+    speed: float
+    acc: float
+    axis: int
+    point: int
+
+
+def audit(traj: Trajectory, path: PathSamples, beta: FloatArray) -> Audit:
+    """Check ``beta`` at every node and check point, and probe the midpoint of every
+    gap between check points (one compiled pass, :func:`rota.kernels.path.audit`)."""
+    m = len(path.frac)
+    bad_i, bad_f = np.empty(m, dtype=np.int64), np.empty(m)
+    breaks, coefs = traj.pieces
+    n_bad, speed, acc, axis, point = kernels().audit(
+        np.ascontiguousarray(beta, dtype=float), path.tau, path.offsets, path.frac, path.cd1,
+        path.cd2, path.vlim, path.a_max, path.beta_max, breaks, coefs, REFINE_TOL, bad_i, bad_f)
+    more = (bad_i[:n_bad], bad_f[:n_bad]) if n_bad else None
+    return Audit(more, float(speed), float(acc), int(axis), int(point))
+
+
+def _brake_from_start(inp: RetimeInput, tau: FloatArray, pos: FloatArray, vlim: FloatArray,
+                      v0: float) -> FloatArray:
     """The vehicle is already faster than the limit at the start (for example a
     replan puts it just before a braking zone): raise the limits near the start
     to a braking profile at ``BRAKE_SHARE`` of the smallest acceleration limit,
     ``v(s) = sqrt(v0^2 - 2 a s)`` over the arc length ``s``, so the re-time
-    brakes as hard as allowed instead of failing. Returns the limits and a note."""
-    p = inp.trajectory.position(tau)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    brakes as hard as allowed instead of failing."""
+    s = _arclength(pos)
     a_brake = BRAKE_SHARE * float(np.min(inp.limits.a_max_vec))
     brake = np.sqrt(np.maximum(v0**2 - 2.0 * a_brake * s, 0.0))
-    raised = brake > vlim
-    last = int(np.flatnonzero(raised)[-1])
-    note = (f"start speed {v0:.2f} m/s exceeds the speed limit {vlim[0]:.2f} m/s at the start; "
-            f"braking at {a_brake:.2f} m/s^2, the limits are exceeded for the first "
-            f"{s[last]:.2f} m")
-    return np.maximum(vlim, brake), note
+    return np.maximum(vlim, brake)
+
+
+def _brake_note(inp: RetimeInput, path: PathSamples, beta: FloatArray, limit: FloatArray,
+                v0: float) -> str:
+    """The warning for a start that is too fast, with the distance over which the
+    re-timed speed actually exceeds the limits (measured on the solution at every
+    check point, not read off the raised limits)."""
+    i = path.interval
+    f = path.frac
+    b = (1 - f) * beta[i] + f * beta[i + 1]
+    speed = np.sqrt(np.einsum("ij,ij->i", path.cd1, path.cd1) * b)
+    lim = np.sqrt((1 - f) * limit[i] ** 2 + f * limit[i + 1] ** 2)
+    ratio = speed / lim - 1.0
+    t = path.point_tau
+    order = np.argsort(t, kind="stable")
+    t, ratio, s1 = t[order], ratio[order], np.linalg.norm(path.cd1[order], axis=1)
+    dist = np.concatenate([[0.0], np.cumsum(np.diff(t) * 0.5 * (s1[1:] + s1[:-1]))])
+    over = np.flatnonzero(ratio > 1e-6)
+    far = 0.0
+    if len(over):
+        k = int(over[-1])
+        far = float(dist[k])
+        if k + 1 < len(t) and ratio[k] > ratio[k + 1]:  # where it crosses the limit
+            far += (dist[k + 1] - dist[k]) * ratio[k] / (ratio[k] - ratio[k + 1])
+    a_brake = BRAKE_SHARE * float(np.min(inp.limits.a_max_vec))
+    return (f"start speed {v0:.2f} m/s exceeds the speed limit {limit[0]:.2f} m/s at the "
+            f"start; braking at {a_brake:.2f} m/s^2, the limits are exceeded for the first "
+            f"{far:.2f} m")
+
+
+def _arclength(pos: FloatArray) -> FloatArray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
 
 
 def _boundary(inp: RetimeInput, d1_start: FloatArray, d2_start: FloatArray,
@@ -138,12 +245,17 @@ def _boundary(inp: RetimeInput, d1_start: FloatArray, d2_start: FloatArray,
     if inp.start_acceleration is not None and beta0 is not None:
         s2 = float(d1_start @ d1_start)
         alpha0 = float((inp.start_acceleration - d2_start * beta0) @ d1_start) / s2
+        if beta0 == 0.0 and alpha0 <= 0.0:
+            raise Infeasible("the vehicle is at rest and its start acceleration does not "
+                             "point along the path: it cannot start moving")
     return Boundary(beta_start=beta0, alpha_start=alpha0, beta_end=beta1)
 
 
 def _boundary_beta(v: FloatArray, d1: FloatArray, vlim: float, where: str) -> float | None:
-    speed = float(np.linalg.norm(v))
-    s = float(np.linalg.norm(d1))
+    vx, vy, vz = v.tolist()
+    dx, dy, dz = d1.tolist()
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    s = math.sqrt(dx * dx + dy * dy + dz * dz)
     if speed > vlim * (1 + 1e-9):
         raise Infeasible(f"{where} speed {speed:.3f} m/s exceeds the speed limit "
                          f"{vlim:.3f} m/s at the {where} of the path")
@@ -152,8 +264,9 @@ def _boundary_beta(v: FloatArray, d1: FloatArray, vlim: float, where: str) -> fl
             raise Infeasible(f"{where} velocity {speed:.3f} m/s is impossible: the path "
                              f"does not move at its {where}")
         return None  # physical velocity is zero whatever beta is
-    tau_dot = float(v @ d1) / (s * s)
-    off = float(np.linalg.norm(v - tau_dot * d1))
+    tau_dot = (vx * dx + vy * dy + vz * dz) / (s * s)
+    off = math.sqrt((vx - tau_dot * dx) ** 2 + (vy - tau_dot * dy) ** 2
+                    + (vz - tau_dot * dz) ** 2)
     if tau_dot < 0 and speed > TANGENT_TOL:
         raise Infeasible(f"{where} velocity points backwards along the path")
     if off > TANGENT_TOL + 0.05 * speed:
@@ -162,23 +275,30 @@ def _boundary_beta(v: FloatArray, d1: FloatArray, vlim: float, where: str) -> fl
     return max(tau_dot, 0.0) ** 2
 
 
-def check_solution(path: PathSamples, beta: FloatArray, boundary: Boundary) -> str | None:
-    """Independent check of a solution against the constraints at the nodes and
-    every candidate check point. None when it holds within :data:`CHECK_TOL`."""
+def _infeasible(problem: ChainProblem, path: PathSamples, inp: RetimeInput,
+                pos: FloatArray) -> str:
+    return describe(problem, path, float(np.linalg.norm(inp.start_velocity)),
+                    float(np.linalg.norm(inp.end_velocity)), _arclength(pos))
+
+
+def check_solution(seen: Audit, path: PathSamples, beta: FloatArray,
+                   boundary: Boundary) -> str | None:
+    """Independent check of a solution against the limits at the nodes and every
+    check point (``seen``: its :func:`audit`). None when they hold within
+    :data:`CHECK_TOL`."""
     if not np.all(np.isfinite(beta)):
         return "non-finite beta"
-    v2, acc = path.ratios(beta)
-    over_v = max(float(np.max(beta / path.beta_max)), float(np.max(v2))) - 1
+    over_v = seen.speed - 1
     if over_v > CHECK_TOL:
         return f"speed limit exceeded by {100 * over_v:.2f} %"
-    k = int(np.argmax(acc))
-    if acc[k] - 1 > CHECK_TOL:
-        return (f"acceleration limit exceeded by {100 * (acc[k] - 1):.2f} % near "
-                f"tau={path.tau[path.pt_interval[k]]:.3f}")
-    scale = max(1.0, float(np.max(beta)))
+    if seen.acc - 1 > CHECK_TOL:
+        i = int(np.searchsorted(path.offsets, seen.point, side="right")) - 1
+        at = path.tau[i] + path.frac[seen.point] * path.h
+        return (f"{'xyz'[seen.axis]} acceleration limit exceeded by "
+                f"{100 * (seen.acc - 1):.2f} % near tau={at:.3f}")
     for name, target, got in (("start", boundary.beta_start, beta[0]),
                               ("end", boundary.beta_end, beta[-1])):
-        if target is not None and abs(got - target) > CHECK_TOL * scale:
+        if target is not None and got != target:
             return f"{name} velocity not met (beta {got:.4g} instead of {target:.4g})"
     return None
 
@@ -195,7 +315,8 @@ def _explain(stats: SolverStats) -> str:
         "NumericalError": "the solver ran into numerical trouble",
         "InsufficientProgress": "the solver made insufficient progress",
     }
-    return words.get(stats.status, f"the solver failed ({stats.status})")
+    text = words.get(stats.status, f"the solver failed ({stats.status})")
+    return f"{text} ({stats.note})" if stats.note else text
 
 
 def uniform_fallback(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,

@@ -2,7 +2,9 @@
 (paper Sec. III-B, III-C), assessed on the re-timing grid.
 
 This is glue over :mod:`rota.voxelmap`, :mod:`rota.braking` and :mod:`rota.chance`;
-its product is one speed limit per grid node, which the SOCP takes through the
+with error memory (``UncertaintyModel.memory_s`` > 0) each braking point's limit
+also holds over the path before it (:func:`rota.chance.memory_limits`). Its
+product is one speed limit per grid node, which the SOCP takes through the
 per-node speed-limit hook (Eq. 23), plus what the result reports.
 """
 
@@ -13,9 +15,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.braking import BrakingParams, BrakingZones, find_braking_zones
-from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, speed_limits
+from rota.braking import BrakingParams, BrakingZones, horizon_of, zones_from
+from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args, memory_caps
 from rota.errors import InputError
+from rota.jit import kernels
 from rota.trajectory import Trajectory
 from rota.voxelmap import VoxelMap
 
@@ -76,6 +79,8 @@ class Assessment:
             probability bound cannot hold: the path itself is unsafe there.
         outside: ``(N+1,)`` nodes outside the map's ``bounds``.
         position: ``(N+1, 3)`` path positions at the nodes.
+        approach: ``(N+1,)`` nodes limited only because a braking point follows
+            within its memory window (error memory; all False without it).
     """
 
     speed_limits: FloatArray
@@ -84,6 +89,7 @@ class Assessment:
     collision: BoolArray
     outside: BoolArray
     position: FloatArray
+    approach: BoolArray
 
     def describe_collision(self, tau: FloatArray) -> str:
         i = int(np.argmax(self.collision))
@@ -95,14 +101,34 @@ class Assessment:
                 f"even at rest ({int(self.collision.sum())} grid nodes)")
 
 
-def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety) -> Assessment:
-    """Braking zones (Alg. 1) and chance-constraint speed limits (Sec. III-C) on ``tau``."""
-    p, d1, _ = trajectory.evaluate(tau)
+def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
+           position: FloatArray | None = None,
+           velocity: FloatArray | None = None) -> Assessment:
+    """Braking zones (Alg. 1) and chance-constraint speed limits (Sec. III-C) on ``tau``.
+
+    ``position`` and ``velocity`` (``sigma'``) on ``tau``, when the caller has them.
+    """
+    if position is None or velocity is None:
+        position, velocity, _ = trajectory.evaluate(tau)
+    p, d1 = position, velocity
     margin = max(2.0, safety.braking.d_th)
     distance, obstacle = safety.map.nearest(p, bbox_margin=margin)
-    zones = find_braking_zones(tau, p, d1, distance, obstacle, safety.braking)
-    chance = speed_limits(p, d1, obstacle, safety.uncertainty, safety.chance)
-    limits = np.where(zones.speed_limit_mask, chance.limit, np.inf)
+    n = len(tau)
+    mask, infeasible = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+    limit, unclamped, limits = np.empty(n), np.empty(n), np.empty(n)
+    starts, ends = kernels().assess_nodes(
+        p, d1, distance, obstacle, safety.braking.d_th, horizon_of(safety.braking),
+        *kernel_args(safety.uncertainty, safety.chance), mask, limit, unclamped, infeasible,
+        limits)
+    zones = zones_from(tau, mask, starts, ends, distance, obstacle, safety.braking)
+    chance = SpeedLimits(limit, unclamped, infeasible, safety.chance.v_floor)
+    approach = np.zeros(len(tau), dtype=bool)
+    if safety.uncertainty.memory_s > 0.0:
+        arclength = np.concatenate(
+            ([0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))))
+        remembered = memory_caps(arclength, limits, safety.uncertainty.memory_s)
+        approach = remembered < limits
+        limits = remembered
     near = distance <= max(safety.braking.d_th, max(safety.chance.semi_axes))
     collision = chance.infeasible & near
     bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
@@ -112,4 +138,4 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety) -> Assessmen
         outside = np.any((p < bounds[0]) | (p > bounds[1]), axis=1)
         unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
         limits = np.where(outside, np.minimum(limits, unknown), limits)
-    return Assessment(limits, zones, chance, collision, outside, p)
+    return Assessment(limits, zones, chance, collision, outside, p, approach)

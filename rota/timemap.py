@@ -31,16 +31,16 @@ class TimeMap:
     alpha: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
-        tau = np.asarray(self.tau, dtype=float)
-        beta = np.maximum(np.asarray(self.beta, dtype=float), 0.0)
-        h = np.diff(tau)
-        root = np.sqrt(beta)
-        with np.errstate(divide="ignore"):
-            dt = 2.0 * h / (root[:-1] + root[1:])
+        from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
+
+        tau = np.ascontiguousarray(self.tau, dtype=float)
+        n = len(tau)
+        beta, t, alpha = np.empty(n), np.empty(n), np.empty(max(n - 1, 0))
+        kernels().time_map(tau, np.ascontiguousarray(self.beta, dtype=float), beta, t, alpha)
         object.__setattr__(self, "tau", tau)
         object.__setattr__(self, "beta", beta)
-        object.__setattr__(self, "t", np.concatenate([[0.0], np.cumsum(dt)]))
-        object.__setattr__(self, "alpha", np.diff(beta) / (2.0 * h))
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "alpha", alpha)
 
     @property
     def duration(self) -> float:

@@ -15,6 +15,7 @@ clamps ``tau`` to the trajectory's domain (no extrapolation).
 
 from __future__ import annotations
 
+import copy as _copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,9 @@ from scipy import interpolate
 from rota.errors import InputError
 
 FloatArray = NDArray[np.float64]
+
+#: What a trajectory makes once and keeps (see :meth:`Trajectory.fresh`).
+_KEPT = ("_pieces", "_edges")
 
 
 def _finite_array(value: ArrayLike, name: str, ndim: int, width: int | None = None) -> FloatArray:
@@ -74,10 +78,32 @@ class Trajectory:
         """Trajectory times where the pieces join (B-spline knots, segment ends,
         sample times) inside the domain: the third derivative may jump there, so
         the acceleration may peak there."""
-        t0, t1 = self.domain
-        x = np.unique(np.asarray(getattr(self._spline, "x", getattr(self._spline, "t", [])),
-                                 dtype=float))
-        return x[(x > t0) & (x < t1)]
+        return self.edges[1:-1]
+
+    def fresh(self) -> Trajectory:
+        """The same path without what re-timing it made and kept (its polynomial
+        pieces, their ends): as a new trajectory from a replan arrives."""
+        copy = _copy.copy(self)
+        for key in _KEPT:
+            copy.__dict__.pop(key, None)
+        base = getattr(copy, "base", None)
+        if isinstance(base, Trajectory):
+            object.__setattr__(copy, "base", base.fresh())
+        return copy
+
+    @property
+    def edges(self) -> FloatArray:
+        """The ends of the pieces: the domain's start, the :attr:`breakpoints`, the
+        domain's end (made once and kept)."""
+        cached = self.__dict__.get("_edges")
+        if cached is None:
+            from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
+
+            t0, t1 = self.domain
+            cached = kernels().piece_edges(self.pieces[0], float(t0), float(t1))
+            cached.setflags(write=False)
+            object.__setattr__(self, "_edges", cached)
+        return cached
 
     @property
     def duration(self) -> float:
@@ -100,6 +126,38 @@ class Trajectory:
         t0, t1 = self.domain
         x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), t0, t1)
         return np.asarray(self._spline(x), dtype=float)
+
+    @property
+    def pieces(self) -> tuple[FloatArray, FloatArray]:
+        """The path as plain polynomial pieces, for compiled evaluation
+        (:func:`rota.path.evaluate`): ``(breaks (m + 1,), coefs (m, k + 1, 3))``,
+        piece ``j`` being ``sum_r coefs[j, r] (tau - breaks[j])^r`` on
+        ``[breaks[j], breaks[j + 1]]``. Made once and kept."""
+        cached = self.__dict__.get("_pieces")
+        if cached is None:
+            cached = _pieces_of(self._spline)
+            object.__setattr__(self, "_pieces", cached)
+        return cached
+
+
+def _pieces_of(spline: object) -> tuple[FloatArray, FloatArray]:
+    """Taylor coefficients of every piece of a scipy spline (read-only arrays)."""
+    if isinstance(spline, interpolate.BPoly):
+        spline = interpolate.PPoly.from_bernstein_basis(spline)
+    if isinstance(spline, interpolate.PPoly):
+        breaks = np.asarray(spline.x, dtype=float)
+        coefs = np.ascontiguousarray(np.transpose(spline.c[::-1], (1, 0, 2)), dtype=float)
+    else:  # BSpline: derivatives at the start of every non-empty knot span (compiled)
+        from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
+
+        breaks, coefs = kernels().bspline_pieces(
+            np.ascontiguousarray(spline.t, dtype=float),
+            np.ascontiguousarray(spline.c, dtype=float), int(spline.k))
+    # A zero-length piece (repeated break) is never selected; keep shapes consistent.
+    breaks = np.ascontiguousarray(breaks, dtype=float)
+    breaks.setflags(write=False)
+    coefs.setflags(write=False)
+    return breaks, coefs
 
 
 @dataclass(frozen=True)
@@ -305,11 +363,6 @@ class Window(Trajectory):
     def domain(self) -> tuple[float, float]:
         return self.start, float(self.end)  # type: ignore[arg-type]
 
-    @property
-    def breakpoints(self) -> FloatArray:
-        x = self.base.breakpoints  # type: ignore[union-attr]
-        return x[(x > self.start) & (x < float(self.end))]  # type: ignore[arg-type]
-
     def evaluate(self, tau: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
         return self.base.evaluate(x)  # type: ignore[union-attr]
@@ -317,3 +370,7 @@ class Window(Trajectory):
     def position(self, tau: ArrayLike) -> FloatArray:
         x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
         return self.base.position(x)  # type: ignore[union-attr]
+
+    @property
+    def pieces(self) -> tuple[FloatArray, FloatArray]:
+        return self.base.pieces  # type: ignore[union-attr]

@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from rota.errors import InputError
+from rota.jit import kernels
 from rota.validate import positive, vector3
 
 FloatArray = NDArray[np.float64]
@@ -128,9 +128,37 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-#: Maps up to this many voxels keep one k-d tree for all queries; larger ones crop
-#: to the query's bounding box each time (paper Alg. 1, lines 5-9).
-TREE_CACHE_LIMIT = 2_000_000
+#: Maps up to this many voxels keep one brick index for all queries; larger ones
+#: index only the voxels in the query's bounding box each time (paper Alg. 1,
+#: lines 5-9).
+INDEX_CACHE_LIMIT = 2_000_000
+#: Voxels per brick side of the nearest-obstacle index (doubled until the brick
+#: grid has at most :data:`MAX_BRICKS` bricks).
+BRICK = 8
+MAX_BRICKS = 1 << 21
+
+
+@dataclass(frozen=True, eq=False)
+class _Bricks:
+    """The occupied centres grouped by brick (:mod:`rota.kernels.nearest`)."""
+
+    lo: NDArray[np.int64]
+    dims: NDArray[np.int64]
+    size: int
+    start: NDArray[np.int64]
+    pts: FloatArray
+    box: FloatArray
+
+    @classmethod
+    def of(cls, idx: NDArray[np.int64], centres: FloatArray) -> _Bricks:
+        lo = idx.min(axis=0)
+        span = idx.max(axis=0) - lo + 1
+        size = BRICK
+        while float(np.prod((span + size - 1) // size)) > MAX_BRICKS:
+            size *= 2
+        dims = ((span + size - 1) // size).astype(np.int64)
+        start, pts, box = kernels().bricks_build(idx, centres, lo, dims, size)
+        return cls(lo, dims, size, start, pts, box)
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,12 +308,14 @@ class VoxelMap:
         """Nearest occupied voxel centre for each query point (paper Alg. 1, l. 5-9, 11).
 
         As in Alg. 1, only occupied voxels inside the query points' axis-aligned
-        bounding box grown by ``bbox_margin`` (m) go into a k-d tree
-        (``scipy.spatial.cKDTree``); each point is then queried. Every obstacle
-        within ``bbox_margin`` of a query point lies in that box, so results are
-        exact up to ``bbox_margin``; beyond it they are reported as "none". Maps of
-        up to :data:`TREE_CACHE_LIMIT` voxels instead keep one tree over the whole
-        map across queries (same answers, no rebuild per replan).
+        bounding box grown by ``bbox_margin`` (m) are searched: they are grouped in
+        bricks of voxels and each point is searched exactly (compiled,
+        :mod:`rota.kernels.nearest`). Every obstacle within ``bbox_margin`` of a
+        query point lies in that box, so results are exact up to ``bbox_margin``
+        (never a farther centre than the nearest); beyond it they are reported as
+        "none". Maps of up to :data:`INDEX_CACHE_LIMIT` voxels instead keep one
+        index over the whole map across queries (same answers, no rebuild per
+        replan).
 
         Returns:
             ``(distances (m,), obstacles (m, 3))``. Where no occupied voxel lies
@@ -304,27 +334,26 @@ class VoxelMap:
         obst = np.full((m, 3), np.nan)
         if m == 0 or len(self) == 0:
             return dist, obst
-        if len(self) <= TREE_CACHE_LIMIT:
-            # Replans query the same map again and again: one k-d tree over the whole
-            # map, built on first use and kept, answers exactly like the cropped tree of
+        if len(self) <= INDEX_CACHE_LIMIT:
+            # Replans query the same map again and again: one index over the whole
+            # map, built on first use and kept, answers exactly like the cropped one of
             # Alg. 1 (results are cut at the same margin) without rebuilding it.
-            local = self.occupied
-            tree = self.__dict__.get("_tree")
-            if tree is None:
-                tree = cKDTree(local)
-                object.__setattr__(self, "_tree", tree)
+            index = self.__dict__.get("_bricks")
+            if index is None:
+                index = _Bricks.of(self.indices, self.occupied)
+                object.__setattr__(self, "_bricks", index)
         else:
             lo = pts.min(axis=0) - margin
             hi = pts.max(axis=0) + margin
             occ = self.occupied
-            local = occ[np.all((occ >= lo) & (occ <= hi), axis=1)]
-            if local.shape[0] == 0:
+            inside = np.all((occ >= lo) & (occ <= hi), axis=1)
+            if not inside.any():
                 return dist, obst
-            tree = cKDTree(local)
-        d, j = tree.query(pts, k=1, distance_upper_bound=margin * (1 + 1e-12))
-        found = np.isfinite(d)
-        dist[found] = d[found]
-        obst[found] = local[j[found]]
+            index = _Bricks.of(self.indices[inside], occ[inside])
+        bound = margin * (1 + 1e-12)
+        kernels().bricks_query(pts, self.origin, self.resolution, index.lo, index.dims,
+                               index.size, index.start, index.pts, index.box, bound * bound,
+                               dist, obst)
         return dist, obst
 
     # -------------------------------------------------------------------- JSON

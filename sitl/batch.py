@@ -9,21 +9,23 @@ iteration; a collision-rate experiment flies thousands of trajectories, so this 
 * controller: :class:`sitl.dynamics.PositionController` (position P + velocity feed-forward,
   velocity limits, velocity PID with D on the measured acceleration, acceleration feed-forward,
   vertical-priority thrust conversion with tilt limit, anti-windup integrator);
-* estimation error: :class:`sitl.estimation.PositionErrorModel` (unit-variance Gauss-Markov
-  ``z`` per axis, exact discretisation, ``e = sigma(|v|) * z``), the controller flying on
-  ``p_true + e``;
+* estimation error and wander: :class:`sitl.estimation.PositionErrorModel` (unit-variance
+  Gauss-Markov ``z`` per axis, exact discretisation, ``e = sigma(|v|) * z``, or the drift
+  model whose increments scale with ``sigma(|v|)``; plus the smooth speed-independent part
+  and the disturbance acceleration when they are on), the controller flying on ``p_true + e``;
 * the order of one physics step is that of ``SimVehicle._physics_step`` for an armed vehicle
   in OFFBOARD: controller on the estimate of the previous step, plant step, error step; the
   true position is then checked against the world like ``SimVehicle._check_collisions``
-  (``signed_distance < robot_radius``, ignored below ``robot_radius`` altitude), and a
-  collision ends that vehicle's flight;
+  (``signed_distance < robot_radius``, ignored below ``robot_radius`` altitude unless
+  ``collide_at_any_altitude``), and a collision ends that vehicle's flight (so does touching
+  the ground with ``ground_ends_flight``: a crash for a real vehicle);
 * setpoints are streamed like ``SimVehicle.run_for(..., setpoint_fn, rate)``: sampled at
   ``k / rate`` and held until the next one.
 
 Random numbers: vehicle ``i`` draws its noise from ``numpy.random.default_rng(seeds[i])`` in
-exactly the order :class:`~sitl.estimation.PositionErrorModel` does (three normals for the
-initial state, then three per physics step), in blocks (block and one-at-a-time draws give the
-same stream). Two vehicles with the same seed therefore see identical noise draws, and a vehicle
+exactly the order :class:`~sitl.estimation.PositionErrorModel` does (its initial draws, then
+``draws_per_step`` per physics step), in blocks (block and one-at-a-time draws give the same
+stream). Two vehicles with the same seed therefore see identical noise draws, and a vehicle
 reproduces ``SimVehicle(seed=s)`` started in the same state (tests/test_batch.py).
 
 Scope: OFFBOARD flight with full setpoints (position, velocity and acceleration feed-forward
@@ -41,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sitl.dynamics import ControllerParams, QuadrotorParams
-from sitl.estimation import EstimationErrorParams
+from sitl.estimation import EstimationErrorParams, smooth_coefficients
 from sitl.world import Box, Cylinder, World
 
 FloatArray = NDArray[np.float64]
@@ -175,6 +177,7 @@ class BatchResult:
             (m; below ``robot_radius`` means collision). Only steps where collisions count
             (airborne, above ``robot_radius``) enter.
         ground_contact: ``(n,)`` the vehicle touched the ground (z = 0) in flight.
+        ground_time: ``(n,)`` time of the first ground contact (s), NaN if none.
         end_time: ``(n,)`` time the flight ended (collision or ``t_end``).
         final_position: ``(n, 3)`` true position at the end.
         max_tracking_error: ``(n,)`` largest ``|p_true - p_setpoint|`` (m).
@@ -190,6 +193,7 @@ class BatchResult:
     collision_position: FloatArray
     min_distance: FloatArray
     ground_contact: BoolArray
+    ground_time: FloatArray
     end_time: FloatArray
     final_position: FloatArray
     max_tracking_error: FloatArray
@@ -211,19 +215,24 @@ class _State:
     z: FloatArray
     err: FloatArray
     on_ground: BoolArray
+    u: FloatArray
+    y: FloatArray
+    q: FloatArray
+    var: FloatArray  # the drift model's running error variance
 
     def take(self, keep: NDArray[np.intp]) -> _State:
         return _State(self.ids[keep], self.pos[keep], self.vel[keep], self.acc[keep],
                       self.thrust[keep], self.integral[keep], self.z[keep], self.err[keep],
-                      self.on_ground[keep])
+                      self.on_ground[keep], self.u[keep], self.y[keep], self.q[keep],
+                      self.var[keep])
 
 
 class NoiseStreams:
     """Per-vehicle normal draws, in :class:`~sitl.estimation.PositionErrorModel` order.
 
     ``seeds[i]`` seeds ``numpy.random.default_rng`` for vehicle ``i``; vehicles sharing a seed
-    share one generator's draws (drawn once, copied). ``first()`` gives the three initial
-    draws, ``block(k)`` the next ``k`` steps ``(n, k, 3)``.
+    share one generator's draws (drawn once, copied). ``first(m)`` gives the ``m`` initial
+    draws ``(n, m)``, ``block(k, width=w)`` the next ``k`` steps ``(n, k, w)``.
     """
 
     def __init__(self, seeds: NDArray[np.int64] | list[int]) -> None:
@@ -239,16 +248,17 @@ class NoiseStreams:
         out._inverse = np.arange(len(rngs))
         return out
 
-    def first(self) -> FloatArray:
-        return np.stack([g.standard_normal(3) for g in self._rngs])[self._inverse]
+    def first(self, count: int = 3) -> FloatArray:
+        return np.stack([g.standard_normal(count) for g in self._rngs])[self._inverse]
 
-    def block(self, k: int, which: NDArray[np.intp] | None = None) -> FloatArray:
+    def block(self, k: int, which: NDArray[np.intp] | None = None,
+              width: int = 3) -> FloatArray:
         """Next ``k`` steps for every stream; returns rows of vehicles ``which`` (default all).
 
         Every stream advances, also those of vehicles that have finished, so a stream's draws
         do not depend on which other vehicles are still flying.
         """
-        draws = np.stack([g.standard_normal((k, 3)) for g in self._rngs])
+        draws = np.stack([g.standard_normal((k, width)) for g in self._rngs])
         inv = self._inverse if which is None else self._inverse[which]
         return draws[inv]
 
@@ -267,6 +277,8 @@ def simulate(
     dt: float = DEFAULT_DT,
     record: bool = False,
     chunk_steps: int = 250,
+    collide_at_any_altitude: bool = False,
+    ground_ends_flight: bool = False,
 ) -> BatchResult:
     """Fly ``n`` vehicles along their setpoint tables until ``t_end[i]`` or a collision.
 
@@ -279,13 +291,19 @@ def simulate(
         start_enu: ``(n, 3)`` initial true position (default: the first setpoint). Vehicles
             start hovering at rest there (thrust = weight, integrator zero).
         initial: optional full initial state overriding ``start_enu``: NED arrays ``(n, 3)``
-            ``pos, vel, acc, thrust, integral, z`` and bool ``on_ground (n,)`` (used to
-            continue a :class:`~sitl.vehicle.SimVehicle` in the validation tests). With
-            ``initial``, ``z`` is taken from it and no initial draws are made.
+            ``pos, vel, acc, thrust, integral, z`` (and ``u, y, q`` of the smooth error and
+            the wander, ``var`` of the drift model, see
+            :meth:`sitl.estimation.PositionErrorModel.state`; zero, or for ``var`` the
+            model's value at the start velocity, if absent)
+            and bool ``on_ground (n,)`` (used to continue a :class:`~sitl.vehicle.SimVehicle`
+            in the validation tests). With ``initial`` no initial draws are made.
         quad / controller / estimation: model parameters (defaults as the vehicle's).
         dt: physics step (s), 4 ms like the vehicle.
         record: keep the per-step history (memory ``O(steps * n)``: for small batches).
         chunk_steps: noise is drawn and finished vehicles are dropped every this many steps.
+        collide_at_any_altitude: count collisions also below ``robot_radius`` altitude and
+            on the ground (``SimVehicle`` ignores them there).
+        ground_ends_flight: the first ground contact ends the flight.
     """
     q = quad if quad is not None else QuadrotorParams()
     c = controller if controller is not None else ControllerParams()
@@ -301,24 +319,48 @@ def simulate(
     m_rows = sp_pos.shape[1]
     steps_per_sp = 1.0 / (setpoints.rate_hz * dt)
 
-    # Initial state.
+    # Initial state (PositionErrorModel.__init__).
+    has_base, has_wander = e.has_base, e.has_wander
+    phi0, scale0, phid, gaind = smooth_coefficients(e, dt)
+    zeros = np.zeros((n, 3))
+    drift = e.kind == "drift"
     if initial is not None:
         st = _State(np.arange(n), *(np.array(initial[k], dtype=float) for k in
                                     ("pos", "vel", "acc", "thrust", "integral", "z")),
-                    np.zeros((n, 3)), np.array(initial["on_ground"], dtype=bool))
+                    zeros.copy(), np.array(initial["on_ground"], dtype=bool),
+                    *(np.array(initial.get(k, zeros), dtype=float) for k in ("u", "y", "q")),
+                    zeros.copy())
+        st.var = np.array(initial["var"], dtype=float) if "var" in initial \
+            else _std(e, st.vel) ** 2
     else:
         p0 = enu_to_ned(setpoints.position[:, 0] if start_enu is None else
                         np.asarray(start_enu, dtype=float))
         thrust0 = np.tile([0.0, 0.0, -q.gravity_m_s2], (n, 1))
-        st = _State(np.arange(n), p0.copy(), np.zeros((n, 3)), np.zeros((n, 3)), thrust0,
-                    np.zeros((n, 3)), noise.first(), np.zeros((n, 3)), np.zeros(n, dtype=bool))
-    st.err = _std(e, st.vel) * st.z if e.enabled else np.zeros((n, 3))
+        first = noise.first(3 + 6 * has_base + 3 * has_wander)
+        u0, y0, q0 = zeros.copy(), zeros.copy(), zeros.copy()
+        k0 = 3
+        if has_base:
+            u0 = first[:, 3:6]
+            y0 = (phi0 * u0 + first[:, 6:9]) / (1.0 + phi0)
+            k0 = 9
+        if has_wander:
+            q0 = first[:, k0:k0 + 3]
+        st = _State(np.arange(n), p0.copy(), zeros.copy(), zeros.copy(), thrust0,
+                    zeros.copy(), first[:, :3].copy(), zeros.copy(), np.zeros(n, dtype=bool),
+                    u0, y0, q0, _std(e, zeros) ** 2)
+        if drift:  # the drift model carries its error itself, stationary at hover
+            st.z = np.sqrt(st.var) * st.z
+    st.err = _error(e, st, scale0)
+    width = 3 + 3 * has_base + 3 * has_wander
+    wander = np.asarray(e.wander_acc_std_m_s2, dtype=float)
+    gain0 = np.sqrt(1.0 - phi0**2)
 
     # Constants.
     g = q.gravity_m_s2
     g_vec = np.array([0.0, 0.0, g])
     f_max = q.thrust_to_weight * g
-    lag = 1.0 - math.exp(-dt / q.attitude_time_constant_s)
+    lag = np.array([1.0 - math.exp(-dt / q.attitude_time_constant_s)] * 2
+                   + [1.0 - math.exp(-dt / q.thrust_time_constant_s)])
     kp_pos = np.array([c.pos_p_xy, c.pos_p_xy, c.pos_p_z])
     kp_vel = np.array([c.vel_p_xy, c.vel_p_xy, c.vel_p_z])
     ki_vel = np.array([c.vel_i_xy, c.vel_i_xy, c.vel_i_z])
@@ -336,6 +378,7 @@ def simulate(
     col_p = np.full((n, 3), np.nan)
     min_d = np.full(n, np.inf)
     ground_contact = np.zeros(n, dtype=bool)
+    ground_t = np.full(n, np.nan)
     end_time = t_end.copy()
     final = np.zeros((n, 3))
     max_track = np.zeros(n)
@@ -352,7 +395,7 @@ def simulate(
     step = 0
     while step < total_steps and len(st.ids):
         k_chunk = min(chunk_steps, total_steps - step)
-        draws = noise.block(k_chunk, st.ids)
+        draws = noise.block(k_chunk, st.ids, width)
         for j in range(k_chunk):
             t_now = step * dt
             # --- setpoint (zero-order hold of the sample at k / rate) ---
@@ -390,6 +433,8 @@ def simulate(
                 cmd[big] *= (f_max / nrm[big])[:, None]
             st.thrust = st.thrust + lag * (cmd - st.thrust)
             acc = st.thrust + g_vec - q.drag_per_s * st.vel
+            if has_wander:
+                acc = acc + wander * st.q
             rest = (st.pos[:, 2] >= ground - 1e-6) & (acc[:, 2] >= 0.0)
             vel = st.vel + acc * dt
             pos = st.pos + vel * dt
@@ -402,14 +447,29 @@ def simulate(
             pos[rest, 2] = ground
             st.pos, st.vel, st.acc = pos, vel, acc
             st.on_ground = rest | touch
-            # --- estimation error (PositionErrorModel.step) ---
-            st.z = phi * st.z + gain * draws[:, j]
+            # --- estimation error and wander (PositionErrorModel.step) ---
             std = _std(e, st.vel)
-            st.err = std * st.z if e.enabled else np.zeros_like(st.z)
+            if drift:
+                st.z = phi * st.z + gain * std * draws[:, j, :3]
+                st.var = phi * phi * st.var + (gain * std) ** 2
+                std = np.sqrt(st.var)
+            else:
+                st.z = phi * st.z + gain * draws[:, j, :3]
+            if has_base:
+                st.y = phi0 * st.y + (1.0 - phi0) * st.u
+                st.u = phi0 * st.u + gain0 * draws[:, j, 3:6]
+            if has_wander:
+                st.q = phid * st.q + gaind * draws[:, j, width - 3:]
+            st.err = _error(e, st, scale0)
+            if has_base:
+                std = np.sqrt(std**2 + np.asarray(e.base_std_m) ** 2)
             step += 1
             t_now = step * dt
             # --- bookkeeping, collisions (SimVehicle._check_collisions) ---
             ids = st.ids
+            landed = st.on_ground & ~ground_contact[ids]
+            if landed.any():
+                ground_t[ids[landed]] = t_now
             ground_contact[ids] |= st.on_ground
             max_track[ids] = np.maximum(max_track[ids], np.linalg.norm(st.pos - psp, axis=1))
             max_est[ids] = np.maximum(max_est[ids], np.linalg.norm(st.err, axis=1))
@@ -418,8 +478,9 @@ def simulate(
             if w is not None:
                 p_enu = ned_to_enu(st.pos)
                 sd = w.signed_distance(p_enu)
-                relevant = ~st.on_ground & (ground - st.pos[:, 2] >= w.robot_radius)
-                sd = np.where(relevant, sd, np.inf)
+                if not collide_at_any_altitude:
+                    relevant = ~st.on_ground & (ground - st.pos[:, 2] >= w.robot_radius)
+                    sd = np.where(relevant, sd, np.inf)
                 min_d[ids] = np.minimum(min_d[ids], sd)
                 hit = sd < w.robot_radius
                 if hit.any():
@@ -429,6 +490,9 @@ def simulate(
                     col_p[hid] = p_enu[hit]
                     end_time[hid] = t_now
             done = hit | (t_now >= t_end[ids] - 0.5 * dt)
+            if ground_ends_flight and st.on_ground.any():
+                end_time[ids[st.on_ground & ~hit]] = t_now
+                done |= st.on_ground
             if record:
                 frozen["pos"][ids] = ned_to_enu(st.pos)
                 frozen["est"][ids] = ned_to_enu(st.pos + st.err)
@@ -454,8 +518,16 @@ def simulate(
     if len(st.ids):
         final[st.ids] = ned_to_enu(st.pos)
     history = {k: np.stack(v) for k, v in hist.items()} if record and hist["time"] else {}
-    return BatchResult(collided, col_t, col_p, min_d, ground_contact, end_time, final,
+    return BatchResult(collided, col_t, col_p, min_d, ground_contact, ground_t, end_time, final,
                        max_track, max_est, max_speed, history)
+
+
+def _error(e: EstimationErrorParams, st: _State, scale0: FloatArray) -> FloatArray:
+    """Estimation error of the vehicles ``(n, 3)`` (PositionErrorModel._update)."""
+    if not e.enabled:
+        return np.zeros_like(st.z)
+    err = st.z.copy() if e.kind == "drift" else _std(e, st.vel) * st.z
+    return err + scale0 * st.y if e.has_base else err
 
 
 def _std(e: EstimationErrorParams, vel: FloatArray) -> FloatArray:
@@ -466,4 +538,4 @@ def _std(e: EstimationErrorParams, vel: FloatArray) -> FloatArray:
         speed = np.broadcast_to(np.linalg.norm(vel, axis=1, keepdims=True), vel.shape)
     else:
         speed = np.abs(vel)
-    return np.maximum(e.slope_s * speed + e.offset_m, e.min_std_m)
+    return np.maximum(e.slope_s * speed + e.offset_m, e.min_std_m) * e.axis_scale

@@ -6,10 +6,13 @@ m/s^2), like PX4's local position. The ground is the plane ``z = ground_z_ned`` 
 Plant (``QuadrotorModel``): a point mass driven by a collective-thrust *specific force* vector
 ``f`` (m/s^2, NED) plus gravity and linear drag::
 
-    p' = v,    v' = f_act + [0, 0, g] - c_d * v,    f_act' = (f_cmd - f_act) / tau_att
+    p' = v,    v' = f_act + [0, 0, g] - c_d * v + d,
+    f_act,xy' = (f_cmd,xy - f_act,xy) / tau_att,    f_act,z' = (f_cmd,z - f_act,z) / tau_thr
 
-The first-order lag ``tau_att`` lumps attitude tracking and motor response (the thrust vector
-can only turn as fast as the vehicle tilts). The commanded force is already limited by the
+The first-order lag ``tau_att`` of the horizontal thrust lumps attitude tracking (the thrust
+vector can only turn as fast as the vehicle tilts), ``tau_thr`` is the motors' lag on the
+vertical thrust; ``d`` is an optional disturbance acceleration (the hover wander of
+:mod:`sitl.estimation`). The commanded force is already limited by the
 controller to the tilt limit and the maximum thrust (thrust-to-weight ratio). Ground contact is
 a unilateral constraint: on the ground with less than hover thrust the vehicle rests (landed).
 
@@ -46,7 +49,8 @@ class QuadrotorParams:
         mass_kg: vehicle mass (only used to report forces; the model works per unit mass).
         gravity_m_s2: gravitational acceleration.
         thrust_to_weight: maximum collective thrust divided by weight (2.0 -> hover at 50 %).
-        attitude_time_constant_s: first-order lag of the thrust vector (attitude + motors).
+        attitude_time_constant_s: first-order lag of the horizontal thrust (attitude loop).
+        thrust_time_constant_s: first-order lag of the vertical thrust (motors).
         drag_per_s: linear drag coefficient per unit mass (1/s).
         yaw_rate_max_rad_s: yaw-rate limit.
         ground_z_ned: NED z of the ground plane (m); home is at z = 0.
@@ -56,9 +60,18 @@ class QuadrotorParams:
     gravity_m_s2: float = 9.80665
     thrust_to_weight: float = 2.0
     attitude_time_constant_s: float = 0.08
+    thrust_time_constant_s: float = 0.08
     drag_per_s: float = 0.05
     yaw_rate_max_rad_s: float = math.radians(120.0)
     ground_z_ned: float = 0.0
+
+
+#: PX4's SIH quadrotor x (airframe 10040): 1 kg, four 5 N motors (thrust/weight 2.04), motor lag
+#: SIH_T_TAU 0.05 s, first-order drag SIH_KDV 1 N per m/s; the attitude lag of 0.25 s was fitted to
+#: the recorded tilt response to PX4's acceleration setpoint (docs/sitl.md, "Calibration").
+PX4_SIH_QUAD = QuadrotorParams(mass_kg=1.0, thrust_to_weight=20.0 / 9.80665,
+                               attitude_time_constant_s=0.25, thrust_time_constant_s=0.05,
+                               drag_per_s=1.0)
 
 
 @dataclass(frozen=True)
@@ -86,7 +99,7 @@ class ControllerParams:
     thr_max: float = 1.0
     thr_hover: float = 0.5
     yaw_p: float = 2.8
-    integrator_limit_m_s2: float = 5.0
+    integrator_limit_m_s2: float = 9.80665  # PX4 clamps the vertical integrator at 1 g
 
 
 @dataclass(frozen=True)
@@ -282,9 +295,19 @@ class QuadrotorModel:
         self.state = state if state is not None else QuadState()
         self._g_vec = np.array([0.0, 0.0, params.gravity_m_s2])
         self._f_max = params.thrust_to_weight * params.gravity_m_s2
+        self._lag_dt = -1.0
+        self._lag = np.zeros(3)
 
-    def step(self, dt: float, thrust_cmd: np.ndarray, yaw_rate_cmd: float) -> QuadState:
-        """Integrate ``dt`` seconds with the commanded specific thrust force and yaw rate."""
+    def lag_gains(self, dt: float) -> np.ndarray:
+        """Per-axis discrete gains of the thrust lags for a step ``dt``."""
+        q = self.params
+        a = 1.0 - math.exp(-dt / q.attitude_time_constant_s)
+        return np.array([a, a, 1.0 - math.exp(-dt / q.thrust_time_constant_s)])
+
+    def step(self, dt: float, thrust_cmd: np.ndarray, yaw_rate_cmd: float,
+             disturbance: np.ndarray | None = None) -> QuadState:
+        """Integrate ``dt`` seconds with the commanded specific thrust force and yaw rate
+        (and an optional disturbance acceleration, NED m/s^2)."""
         s = self.state
         q = self.params
         # Physical saturation of the collective thrust.
@@ -292,9 +315,12 @@ class QuadrotorModel:
         n = float(np.linalg.norm(cmd))
         if n > self._f_max:
             cmd = cmd * (self._f_max / n)
-        alpha = 1.0 - math.exp(-dt / q.attitude_time_constant_s)
-        s.thrust = s.thrust + alpha * (cmd - s.thrust)
+        if self._lag_dt != dt:
+            self._lag, self._lag_dt = self.lag_gains(dt), dt
+        s.thrust = s.thrust + self._lag * (cmd - s.thrust)
         acc = s.thrust + self._g_vec - q.drag_per_s * s.velocity
+        if disturbance is not None:
+            acc = acc + disturbance
         # Ground contact: resting on the ground unless the net force lifts the vehicle.
         on_ground = s.position[2] >= q.ground_z_ned - 1e-6
         if on_ground and acc[2] >= 0.0:

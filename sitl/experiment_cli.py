@@ -1,9 +1,12 @@
-"""``rota-sitl``: simulation experiments on the sitl stack.
+"""rota-sitl: simulation experiments on the sitl stack.
 
-Example::
+Examples:
+  rota-sitl experiment collision-rate                            # the full grid, 500 trials/cell
+  rota-sitl experiment collision-rate --trials 4 --out /tmp/t1   # a quick check
+  rota-sitl experiment memory-dose --seed 1 --trials 300         # the memory time's rule
 
-    rota-sitl experiment collision-rate                      # the full grid, 500 trials/cell
-    rota-sitl experiment collision-rate --trials 4 --out /tmp/t1   # a quick check
+Exit status: 0 the run finished (also when the hypothesis fails: the table says
+whether it holds); 2 bad arguments; 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -12,46 +15,98 @@ import argparse
 import shlex
 import sys
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 
-from sitl.estimation import EstimationErrorParams
-from sitl.experiment import ExperimentConfig, run_experiment, write_outputs
+from rota.chance import DEFAULT_MEMORY_S
+from sitl.estimation import DRIFT, KINDS, EstimationErrorParams
+from sitl.experiment import VEHICLES, ExperimentConfig, run_experiment
+from sitl.experiment_report import write_dose, write_outputs
+
+#: The memory times of the dose-response (s).
+DOSE_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 
 
 def _floats(text: str) -> tuple[float, ...]:
-    return tuple(float(x) for x in text.split(","))
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") \
+            from None
+
+
+def _kinds(text: str) -> tuple[str, ...]:
+    kinds = tuple(x.strip() for x in text.split(","))
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or len(set(kinds)) != len(kinds):
+        raise argparse.ArgumentTypeError(f"expected distinct names from {', '.join(KINDS)}, "
+                                         f"got {text!r}")
+    return kinds
+
+
+def _common(p: argparse.ArgumentParser, d: ExperimentConfig) -> None:
+    e, dr = EstimationErrorParams(), DRIFT
+    p.add_argument("--trials", type=int, default=d.trials, help="trials per cell")
+    p.add_argument("--seed", type=int, default=d.seed, help="experiment seed")
+    p.add_argument("--workers", type=int, default=d.workers, help="processes")
+    p.add_argument("--chunk", type=int, default=d.chunk, help="trials per task")
+    p.add_argument("--accel-ratio", type=float, default=d.accel_ratio,
+                   help="a_max = RATIO * v_max")
+    p.add_argument("--error-models", type=_kinds, default=tuple(x.kind for x in d.errors),
+                   help=f"comma-separated error models ({', '.join(KINDS)})")
+    p.add_argument("--error-slope", type=float, default=e.slope_s, help="m (s), both models")
+    p.add_argument("--error-offset", type=float, default=e.offset_m, help="b (m), both models")
+    p.add_argument("--error-tau", type=float, default=e.correlation_time_s,
+                   help="correlated model: correlation time (s)")
+    p.add_argument("--drift-tau", type=float, default=dr.correlation_time_s,
+                   help="drift model: re-anchoring time (s)")
+    p.add_argument("--vertical-scale", type=float, default=e.vertical_scale,
+                   help="vertical error std as a share of the horizontal")
+    p.add_argument("--vehicle", choices=tuple(VEHICLES), default=d.vehicle,
+                   help="dynamics: calibrated to PX4's SIH quadrotor (default) or the idealised "
+                        "point mass")
+    p.add_argument("--d-th", type=float, default=None,
+                   help="ROTA braking threshold (m; default: ROTA's 1 m) - sensitivity only")
+    p.add_argument("--rejected", choices=("exclude", "fallback"), default=d.rejected,
+                   help="trials whose path ROTA rejects: leave out of every arm (default) or "
+                        "fly ROTA's fallback timing")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="rota-sitl", description="Simulation experiments.")
+    doc = (__doc__ or "").split("\n\n")
+    ap = argparse.ArgumentParser(prog="rota-sitl", description="Simulation experiments.",
+                                 epilog="\n\n".join(doc[1:]).strip(),
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    try:
+        ver = version("rota-companion")
+    except PackageNotFoundError:  # pragma: no cover - a source tree
+        ver = "unknown"
+    ap.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     sub = ap.add_subparsers(dest="group", required=True)
     exp = sub.add_parser("experiment", help="run an experiment")
     which = exp.add_subparsers(dest="name", required=True)
+    d = ExperimentConfig()
     cr = which.add_parser(
         "collision-rate",
-        help="paper Table I: collision rates with / without ROTA (docs/table1.md)",
-    )
-    d = ExperimentConfig()
-    e = EstimationErrorParams()
-    cr.add_argument("--trials", type=int, default=d.trials, help="trials per cell")
-    cr.add_argument("--seed", type=int, default=d.seed, help="experiment seed")
-    cr.add_argument("--workers", type=int, default=d.workers, help="processes")
-    cr.add_argument("--chunk", type=int, default=d.chunk, help="trials per task")
+        help="paper Table I with the controls: planner, ROTA, ROTA with error memory, and "
+             "uniform slow-downs of the same duration (docs/table1.md)")
+    _common(cr, d)
     cr.add_argument("--densities", type=_floats, default=d.densities,
                     help="comma-separated trees per m^2")
     cr.add_argument("--speeds", type=_floats, default=d.speeds, help="comma-separated v_max")
-    cr.add_argument("--accel-ratio", type=float, default=d.accel_ratio,
-                    help="a_max = RATIO * v_max")
-    cr.add_argument("--error-slope", type=float, default=e.slope_s, help="m (s)")
-    cr.add_argument("--error-offset", type=float, default=e.offset_m, help="b (m)")
-    cr.add_argument("--error-tau", type=float, default=e.correlation_time_s,
-                    help="noise correlation time (s)")
-    cr.add_argument("--d-th", type=float, default=None,
-                    help="ROTA braking threshold (m; default: ROTA's 1 m) - sensitivity only")
-    cr.add_argument("--rejected", choices=("exclude", "fallback"), default=d.rejected,
-                    help="trials whose path ROTA rejects: leave out of both arms (default) or "
-                         "count ROTA as flying its fallback timing")
+    cr.add_argument("--memory", type=float, default=DEFAULT_MEMORY_S,
+                    help="memory time T of the error-memory arm (s)")
     cr.add_argument("--out", default="table1-out", help="output directory")
-    cr.add_argument("--quiet", action="store_true", help="no progress lines")
+    dose = which.add_parser(
+        "memory-dose",
+        help="crash rate and flight time against ROTA's memory time in one cell, and the "
+             "rule's pick of the default (docs/table1.md)")
+    _common(dose, d)
+    dose.add_argument("--density", type=float, default=0.063, help="trees per m^2")
+    dose.add_argument("--speed", type=float, default=3.0, help="v_max (m/s)")
+    dose.add_argument("--memories", type=_floats, default=DOSE_GRID,
+                      help="comma-separated memory times (s)")
+    dose.add_argument("--out", default="dose-out", help="output directory")
     return ap
 
 
@@ -59,17 +114,46 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``rota-sitl``; returns the exit status (0 also when the hypothesis
     fails: the run itself succeeded; the table says whether it holds)."""
     args = _parser().parse_args(argv)
-    est = EstimationErrorParams(slope_s=args.error_slope, offset_m=args.error_offset,
-                                correlation_time_s=args.error_tau)
-    cfg = ExperimentConfig(densities=args.densities, speeds=args.speeds,
-                           accel_ratio=args.accel_ratio, trials=args.trials, seed=args.seed,
-                           workers=args.workers, chunk=args.chunk, estimation=est,
-                           d_th=args.d_th, rejected=args.rejected)
+    try:
+        return _run(args, argv)
+    except (ValueError, OSError) as exc:  # InputError too: the message names the field
+        print(f"rota-sitl: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rota-sitl: interrupted", file=sys.stderr)
+        return 130
+
+
+def _errors(args: argparse.Namespace) -> tuple[EstimationErrorParams, ...]:
+    out = []
+    for kind in args.error_models:
+        tau = args.error_tau if kind == "correlated" else args.drift_tau
+        out.append(EstimationErrorParams(slope_s=args.error_slope, offset_m=args.error_offset,
+                                         correlation_time_s=tau, kind=kind,
+                                         vertical_scale=args.vertical_scale))
+    return tuple(out)
+
+
+def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    for name in ("trials", "workers", "chunk"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name}: must be at least 1, got {getattr(args, name)}")
+    common = dict(accel_ratio=args.accel_ratio, trials=args.trials, seed=args.seed,
+                  workers=args.workers, chunk=args.chunk, errors=_errors(args),
+                  d_th=args.d_th, rejected=args.rejected, vehicle=args.vehicle)
+    if args.name == "collision-rate":
+        memories = (0.0,) if args.memory == 0.0 else (0.0, args.memory)
+        cfg = ExperimentConfig(densities=args.densities, speeds=args.speeds,
+                               memories=memories, **common)
+    else:
+        cfg = ExperimentConfig(densities=(args.density,), speeds=(args.speed,),
+                               memories=tuple(sorted(args.memories)), **common)
     progress = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     result = run_experiment(cfg, progress)
     shown = list(sys.argv[1:] if argv is None else argv)
     command = "rota-sitl " + " ".join(shlex.quote(a) for a in shown)
-    paths = write_outputs(result, args.out, command)
+    write = write_outputs if args.name == "collision-rate" else write_dose
+    paths = write(result, args.out, command)
     with open(paths["md"]) as f:
         print(f.read())
     print(f"wrote {paths['md']}, {paths['png']}, {paths['json']}")

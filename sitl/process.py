@@ -29,11 +29,15 @@ class SimReport:
     mode: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
     events: list[tuple[float, str]] = field(default_factory=list)
     home_enu: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: every offboard setpoint the vehicle received, as it received it: ``wall_time``
+    #: (host monotonic s, the same clock as the service's), ``time_s`` (sim), and
+    #: ``position`` (world ENU), ``velocity``, ``acceleration`` (ENU), ``mode``
+    setpoints: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - other process
     from sitl.estimation import EstimationErrorParams
-    from sitl.vehicle import SimVehicle, VehicleParams, ned_to_enu
+    from sitl.vehicle import SimVehicle, VehicleParams, ned_to_enu, setpoint_arrays
     from sitl.world import World, get_world
 
     world = None
@@ -44,7 +48,8 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
     start = getattr(world, "start", None)
     home = (float(start[0]), float(start[1]), 0.0) if start is not None else (0.0, 0.0, 0.0)
     params = VehicleParams(home_enu_m=home, **options.get("params", {}))
-    est = EstimationErrorParams(**options.get("estimation", {}))
+    est = (EstimationErrorParams(**options["estimation"]) if options.get("estimation")
+           else None)  # None: the vehicle's default, PX4's EKF in SIH
     sim = SimVehicle(params, estimation=est, world=world, seed=options["seed"],
                      port=options["port"], record_history=True, history_decimation=5)
     sim.start()
@@ -64,6 +69,10 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
             elif cmd == "block":
                 sim.link_blocked = bool(args[0])
                 conn.send(True)
+            elif cmd == "disarm":  # a kill switch / crash detector: disarms in the air
+                conn.send(sim.disarm(force=True))
+            elif cmd == "setpoints":  # the record so far (ENU), as in the report
+                conn.send(_setpoints_enu(setpoint_arrays(sim.setpoint_log[args[0]:]), home))
             elif cmd == "stop":
                 break
     finally:
@@ -75,7 +84,18 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
             time_s=h["time_s"], true_position=ned_to_enu(h["true_position_ned"]) + home,
             estimated_position=ned_to_enu(h["estimated_position_ned"]) + home,
             velocity=ned_to_enu(h["velocity_ned"]), mode=h["mode"],
-            events=list(sim.events), home_enu=np.asarray(home)))
+            events=list(sim.events), home_enu=np.asarray(home),
+            setpoints=_setpoints_enu(setpoint_arrays(sim.setpoint_log), home)))
+
+
+def _setpoints_enu(sp: dict[str, np.ndarray], home: Any) -> dict[str, np.ndarray]:
+    from sitl.vehicle import ned_to_enu
+
+    return {"wall_time": sp["wall_time"], "time_s": sp["time_s"],
+            "position": ned_to_enu(sp["position_ned"]) + np.asarray(home),
+            "velocity": ned_to_enu(sp["velocity_ned"]),
+            "acceleration": ned_to_enu(sp["acceleration_ned"]), "mode": sp["mode"],
+            "sent_s": sp["sent_s"]}
 
 
 class SimProcess:
@@ -87,7 +107,9 @@ class SimProcess:
         seed: world and noise seed.
         port: the companion's UDP port (MAVSDK ``udpin://127.0.0.1:<port>``).
         params: overrides of :class:`sitl.vehicle.VehicleParams` fields.
-        estimation: overrides of :class:`sitl.estimation.EstimationErrorParams` fields.
+        estimation: an estimation-error model as :class:`sitl.estimation.EstimationErrorParams`
+            fields (over the dataclass defaults: the paper's speed-dependent model alone);
+            None or empty: the vehicle's default, PX4's EKF in SIH with hover wander.
     """
 
     def __init__(self, *, port: int, world: str | None = None,
@@ -127,6 +149,15 @@ class SimProcess:
     def block_link(self, blocked: bool = True) -> None:
         """Drop all MAVLink traffic in both directions (a link loss)."""
         self._ask("block", blocked)
+
+    def force_disarm(self) -> int:
+        """Disarm now, in the air too (a kill switch); returns the MAV_RESULT."""
+        return self._ask("disarm")
+
+    def setpoints(self, start: int = 0) -> dict[str, np.ndarray]:
+        """The offboard setpoints received so far (from index ``start``), as
+        :attr:`SimReport.setpoints`."""
+        return self._ask("setpoints", start)
 
     def __exit__(self, *exc: object) -> None:
         try:

@@ -1,5 +1,6 @@
 """Independent measurement of a re-timed trajectory: finite differences of the
-positions it produces, never the velocities it reports."""
+positions it produces, never the velocities it reports; and a minimum-jerk move
+for the flight tests."""
 
 from __future__ import annotations
 
@@ -28,3 +29,13 @@ def measured_kinematics(result: RetimeResult, refine: int = 10):
     v = np.diff(p, axis=0) / dt[:, None]
     a = 2 * (v[1:] - v[:-1]) / (dt[1:] + dt[:-1])[:, None]
     return t, np.linalg.norm(v, axis=1), a
+
+
+def min_jerk(t: float, duration: float, dist: float) -> tuple[float, float, float]:
+    """Position, velocity, acceleration of a rest-to-rest minimum-jerk move of ``dist``
+    metres in ``duration`` seconds at time ``t`` (held before and after)."""
+    s = min(max(t / duration, 0.0), 1.0)
+    p = dist * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    v = dist / duration * (30 * s**2 - 60 * s**3 + 30 * s**4)
+    a = dist / duration**2 * (60 * s - 180 * s**2 + 120 * s**3)
+    return p, v, a

@@ -4,12 +4,16 @@ The reference is :class:`sitl.vehicle.SimVehicle` itself (which composes ``sitl.
 ``sitl.estimation``): a vehicle takes off, hovers in OFFBOARD, and then flies a trajectory with
 setpoints streamed at 50 Hz. The batch simulator starts from the same state (read from the
 vehicle) with the same random stream and must reproduce the true and the estimated path, and
-the collision, to within ``PATH_TOL`` (only floating-point rounding differs).
+the collision, to within ``PATH_TOL`` (only floating-point rounding differs). Both models are
+checked: the idealised one of the collision-rate experiment (the dataclass defaults: light drag,
+the paper's error model) and the vehicle's default, PX4's SIH quadrotor with its EKF error and
+hover wander.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -23,8 +27,8 @@ from sitl.batch import (
     ned_to_enu,
     simulate,
 )
-from sitl.dynamics import Setpoint
-from sitl.estimation import EstimationErrorParams
+from sitl.dynamics import PX4_SIH_QUAD, QuadrotorParams, Setpoint
+from sitl.estimation import PX4_SIH_ESTIMATION, EstimationErrorParams
 from sitl.planner import plan, straight_line
 from sitl.vehicle import Px4Mode, SimVehicle, VehicleParams
 from sitl.world import Box, Cylinder, World, forest, pillar_world
@@ -32,6 +36,9 @@ from sitl.world import Box, Cylinder, World, forest, pillar_world
 #: Largest allowed difference (m) between batch and single-vehicle paths.
 PATH_TOL = 1e-9
 RATE = 50.0
+#: (quad, estimation) of the experiment's idealised vehicle and of the PX4-like one
+IDEAL_MODEL = (QuadrotorParams(), EstimationErrorParams())
+PX4_MODEL = (PX4_SIH_QUAD, PX4_SIH_ESTIMATION)
 
 
 def _table(traj: BSplineTrajectory, duration: float) -> SetpointTable:
@@ -43,7 +50,7 @@ def _table(traj: BSplineTrajectory, duration: float) -> SetpointTable:
 
 
 def _fly_single(world: World, traj: BSplineTrajectory, seed: int, duration: float,
-                estimation: EstimationErrorParams | None = None):
+                estimation: EstimationErrorParams, quad: QuadrotorParams):
     """SimVehicle: take off at the trajectory's start, hover in OFFBOARD, then fly ``traj``.
 
     Returns the vehicle, the state at the start of the trajectory (batch-NED, home at the ENU
@@ -51,12 +58,12 @@ def _fly_single(world: World, traj: BSplineTrajectory, seed: int, duration: floa
     """
     start = traj.position(np.array([0.0]))[0]
     home = (float(start[0]), float(start[1]), 0.0)
-    params = VehicleParams(offboard_min_stream_s=0.0, home_enu_m=home)
+    params = VehicleParams(home_enu_m=home)
     sim = SimVehicle(params, world=world, seed=seed, record_history=True,
-                     estimation=estimation)
+                     estimation=estimation, quad=quad)
     assert sim.arm() == 0
     assert sim.takeoff(float(start[2])) == 0
-    sim.run_for(6.0)
+    sim.run_for(14.0)
     home_arr = np.array(home)
 
     def to_ned(p_enu: np.ndarray) -> np.ndarray:
@@ -71,7 +78,8 @@ def _fly_single(world: World, traj: BSplineTrajectory, seed: int, duration: floa
         "pos": enu_to_ned(ned_to_enu(s.position[None]) + home_arr),
         "vel": s.velocity[None].copy(), "acc": s.acceleration[None].copy(),
         "thrust": s.thrust[None].copy(), "integral": sim._ctrl.integral[None].copy(),
-        "z": sim._err._z[None].copy(), "on_ground": np.array([s.on_ground]),
+        "on_ground": np.array([s.on_ground]),
+        **{k: v[None] for k, v in sim._err.state().items()},
     }
     rng = np.random.default_rng()
     rng.bit_generator.state = sim._err._rng.bit_generator.state
@@ -90,23 +98,25 @@ def _fly_single(world: World, traj: BSplineTrajectory, seed: int, duration: floa
 
 
 def _compare(world: World, traj: BSplineTrajectory, seed: int, duration: float,
-             estimation: EstimationErrorParams | None = None):
-    sim, initial, rng, n0, home = _fly_single(world, traj, seed, duration, estimation)
+             model: tuple[QuadrotorParams, EstimationErrorParams] = IDEAL_MODEL):
+    quad, estimation = model
+    sim, initial, rng, n0, home = _fly_single(world, traj, seed, duration, estimation, quad)
     res = simulate(_table(traj, duration), BatchWorlds.from_worlds([world]),
                    np.array([duration]), NoiseStreams.from_generators([rng]),
-                   initial=initial, estimation=estimation, record=True)
+                   initial=initial, estimation=estimation, quad=quad, record=True)
     h = sim.history.arrays()
     true_single = ned_to_enu(h["true_position_ned"][n0:]) + home
     est_single = ned_to_enu(h["estimated_position_ned"][n0:]) + home
     return sim, res, true_single, est_single
 
 
-def test_batch_reproduces_single_vehicle_forest_flight():
+@pytest.mark.parametrize("model", [IDEAL_MODEL, PX4_MODEL], ids=["ideal", "px4"])
+def test_batch_reproduces_single_vehicle_forest_flight(model):
     """3 m/s planned flight through a dense forest: same true and estimated path."""
     world = forest(0.063, 4)
     traj = plan(world, 3.0, 3.0)
     duration = traj.duration + 1.0
-    sim, res, true_single, est_single = _compare(world, traj, 11, duration)
+    sim, res, true_single, est_single = _compare(world, traj, 11, duration, model)
     k = min(len(true_single), res.history["true_position"].shape[0])
     if not sim.collisions:
         assert k == len(true_single) == res.history["true_position"].shape[0]
@@ -118,11 +128,12 @@ def test_batch_reproduces_single_vehicle_forest_flight():
     assert bool(res.collided[0]) == bool(sim.collisions)
 
 
-def test_batch_reproduces_single_vehicle_collision():
+@pytest.mark.parametrize("model", [IDEAL_MODEL, PX4_MODEL], ids=["ideal", "px4"])
+def test_batch_reproduces_single_vehicle_collision(model):
     """A straight line through a pillar: same collision step, position and distance."""
-    world = World((Cylinder(10.0, 10.35, 0.2),), start=(1.0, 10.0, 1.0), goal=(19.0, 10.0, 1.0))
+    world = World((Cylinder(10.0, 10.35, 0.2),), start=(1.0, 10.0, 2.0), goal=(19.0, 10.0, 2.0))
     traj = straight_line(np.array(world.start), np.array(world.goal), 2.0, 2.0)
-    sim, res, true_single, _ = _compare(world, traj, 5, traj.duration + 1.0)
+    sim, res, true_single, _ = _compare(world, traj, 5, traj.duration + 1.0, model)
     assert len(sim.collisions) == 1 and res.collided[0]
     col = sim.collisions[0]
     assert res.collision_position[0] == pytest.approx(col.position_enu, abs=PATH_TOL)
@@ -139,10 +150,60 @@ def test_batch_reproduces_single_vehicle_axis_mode_and_short_tau():
                                 speed_mode="axis")
     world = pillar_world()
     traj = plan(world, 2.0, 2.0)
-    sim, res, true_single, est_single = _compare(world, traj, 2, traj.duration + 0.5, est)
+    sim, res, true_single, est_single = _compare(world, traj, 2, traj.duration + 0.5,
+                                                 (QuadrotorParams(), est))
     k = res.history["true_position"].shape[0]
     assert np.abs(res.history["true_position"][:, 0] - true_single[:k]).max() < PATH_TOL
     assert np.abs(res.history["estimated_position"][:, 0] - est_single[:k]).max() < PATH_TOL
+
+
+def test_batch_reproduces_single_vehicle_drift_model():
+    """The drift model (error carried over, increments scaled by sigma), another vertical
+    scale, on the calibrated vehicle with PX4's base error and wander: same true and
+    estimated path, same reported std, as SimVehicle."""
+    est = replace(PX4_SIH_ESTIMATION, kind="drift", slope_s=0.2, offset_m=-0.1, min_std_m=0.02,
+                  correlation_time_s=3.0, vertical_scale=0.3)  # with PX4's base error, wander
+    world = forest(0.043, 2)
+    traj = plan(world, 3.0, 3.0)
+    sim, res, true_single, est_single = _compare(world, traj, 9, traj.duration + 1.0,
+                                                 (PX4_SIH_QUAD, est))
+    k = res.history["true_position"].shape[0]
+    assert np.abs(res.history["true_position"][:, 0] - true_single[:k]).max() < PATH_TOL
+    assert np.abs(res.history["estimated_position"][:, 0] - est_single[:k]).max() < PATH_TOL
+    h = sim.history.arrays()
+    n0 = len(h["error_std_m"]) - len(true_single)
+    std_single = h["error_std_m"][n0:n0 + k][:, [1, 0, 2]]
+    assert np.abs(res.history["error_std"][:, 0] - std_single).max() < PATH_TOL
+    assert res.max_estimation_error[0] > 0.2
+
+
+def test_drift_error_persists_after_slowing_down():
+    """3 m/s for 6 s, then hover: the correlated model's error std drops to its hover value
+    at once; the drift model's decays with its tau (3 s), from the same stationary value at
+    3 m/s (sigma = 0.5 m per horizontal axis)."""
+    n, dur = 300, 12.0
+    t = np.arange(int(dur * RATE) + 1) / RATE
+    x = np.where(t < 6.0, 3.0 * t, 18.0)
+    p = np.column_stack([x, np.zeros_like(t), np.ones_like(t)])
+    v = np.column_stack([np.where(t < 6.0, 3.0, 0.0), 0 * t, 0 * t])
+    tab = SetpointTable.from_lists(RATE, [(p, v, np.zeros_like(p))] * n)
+    out = {}
+    for kind, tau in (("correlated", 1.0), ("drift", 3.0)):
+        est = EstimationErrorParams(kind=kind, correlation_time_s=tau)
+        res = simulate(tab, None, np.full(n, dur), np.arange(n), estimation=est, record=True)
+        h = res.history
+        err = h["estimated_position"] - h["true_position"]
+        out[kind] = (h["time"], np.sqrt(np.mean(err[..., 1] ** 2, axis=1)),
+                     h["error_std"][:, 0, 1])
+    tt, rms_c, std_c = out["correlated"]
+    _, rms_d, std_d = out["drift"]
+    cruise = (tt > 4.5) & (tt < 5.5)
+    assert std_d[cruise].mean() == pytest.approx(0.5, rel=0.05)
+    assert rms_d[cruise].mean() == pytest.approx(0.5, rel=0.2)
+    after = (tt > 9.0) & (tt < 9.5)  # 3 s after the stop (the vehicle settles in ~2.5 s)
+    assert std_c[after].max() < 0.05  # the correlated error is gone at hover speed
+    assert std_d[after].min() > 0.5 * math.exp(-3.5 / 3.0) * 0.9  # decays with tau only
+    assert rms_d[after].mean() > 4 * rms_c[after].mean()
 
 
 def test_equal_seeds_equal_draws_and_independent_of_batch():
@@ -187,9 +248,10 @@ def test_error_statistics_match_model():
     speeds = np.linalg.norm(h["velocity"][sl], axis=2)
     assert speeds.mean() == pytest.approx(speed, rel=0.02)
     # sigma follows the true speed of every step (the vehicle chases its noisy estimate, so
-    # the speed itself fluctuates), per axis and exactly the model's formula.
-    want_std = np.maximum(0.2 * speeds - 0.1, 0.02)
-    assert np.abs(h["error_std"][sl] - want_std[..., None]).max() < 1e-12
+    # the speed itself fluctuates), per axis and exactly the model's formula; the vertical
+    # std is half the horizontal one (the default vertical_scale).
+    want_std = np.maximum(0.2 * speeds - 0.1, 0.02)[..., None] * [1.0, 1.0, 0.5]
+    assert np.abs(h["error_std"][sl] - want_std).max() < 1e-12
     rms_model = np.sqrt(np.mean(h["error_std"][sl] ** 2, axis=(0, 1)))
     assert np.sqrt(np.mean(err**2, axis=(0, 1))) == pytest.approx(rms_model, rel=0.03)
     z = err / h["error_std"][sl]
@@ -226,3 +288,24 @@ def test_ground_contact_and_collision_altitude_rule():
     assert res.ground_contact[0]
     assert not res.collided[0]
     assert res.history["true_position"][-1, 0, 2] == 0.0
+
+
+def test_collisions_at_any_altitude_and_ground_ends_flight():
+    """The experiment's crash rules: a trunk touched below the robot-radius altitude counts,
+    and the first ground contact ends the flight at its time."""
+    t = np.arange(201) / RATE
+    p = np.column_stack([np.full_like(t, 5.0), np.full_like(t, 5.0), np.full_like(t, -1.0)])
+    tab = SetpointTable.from_lists(RATE, [(p, np.zeros_like(p), np.zeros_like(p))])
+    # A stump 0.25 m from the vehicle's axis, 0.1 m tall: out of reach at or above
+    # the robot-radius altitude (0.3 m), in reach below it.
+    world = BatchWorlds.from_worlds([World((Cylinder(5.0, 5.35, 0.1, 0.0, 0.1),))])
+    start = np.array([[5.0, 5.0, 0.5]])
+    low = simulate(tab, world, np.array([4.0]), [0], start_enu=start,
+                   collide_at_any_altitude=True)
+    assert low.collided[0] and low.collision_position[0, 2] < 0.3
+    assert not simulate(tab, world, np.array([4.0]), [0], start_enu=start).collided[0]
+    ground = simulate(tab, None, np.array([4.0]), [0], start_enu=start, ground_ends_flight=True)
+    assert ground.ground_contact[0] and ground.end_time[0] == ground.ground_time[0] < 4.0
+    assert ground.final_position[0, 2] == 0.0
+    free = simulate(tab, None, np.array([4.0]), [0], start_enu=start)
+    assert free.ground_time[0] == ground.ground_time[0] and free.end_time[0] == 4.0

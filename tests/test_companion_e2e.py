@@ -1,11 +1,11 @@
 """End-to-end: the flight service over real Zenoh sessions and MAVSDK (UDP on
-loopback) against the ``sitl`` vehicle in its own process (issue #6)."""
+loopback) against the ``sitl`` vehicle in its own process."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
+import logging
 import os
 import signal
 import socket
@@ -14,36 +14,45 @@ import sys
 import tempfile
 import threading
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
 
+from companion.config import to_toml
 from companion.demo import (
-    GroundStation,
+    DEMO_ALTITUDE_M,
     closest_approach,
     demo_config,
     fly_to_goal,
     free_tcp_port,
+    held_position,
+    plan_async,
     running,
     take_off,
     to_local,
     trajectory_message,
 )
+from companion.gs import GroundStation
+from companion.plan import blend_speed
+from companion.record import read
 from sitl.mavsdk_util import free_udp_port
-from sitl.planner import plan
 from sitl.process import SimProcess
+from sitl.stream_checks import check_stream
 from sitl.world import get_world
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 SPEED = 2.0
 
 
-def run_flight(scenario, seed: int = 3, world_name: str = "forest", **overrides):
+def run_flight(scenario, seed: int = 3, world_name: str = "forest", state_dir=None,
+               **overrides):
     """Start vehicle + service + ground station, run ``scenario(gs, service, sim,
     world)``, return its result and the vehicle's report."""
     world = get_world(world_name, seed=seed)
     mav, zport = free_udp_port(), free_tcp_port()
-    with tempfile.TemporaryDirectory() as state:
+    with tempfile.TemporaryDirectory() as tmp:
+        state = str(state_dir or tmp)
         cfg = demo_config(mav, zport, SPEED, state, **overrides)
 
         async def main():
@@ -59,7 +68,9 @@ async def start_flight(gs, sim, world, ident: str, progress: float = 0.0):
     """Take off, publish the planner's trajectory, start; wait for ``progress``."""
     home = sim.home_enu
     await take_off(gs, world, home)
-    traj = plan(world, v_max=SPEED, a_max=2.0)
+    here = held_position(gs, home)
+    traj = await plan_async(world, v_max=SPEED, a_max=2.0, start=here,
+                            goal=[world.goal[0], world.goal[1], here[2]])
     gs.publish("trajectory", trajectory_message(to_local(traj, home), ident))
     assert (await gs.command("start"))["ok"]
     if progress:
@@ -67,26 +78,63 @@ async def start_flight(gs, sim, world, ident: str, progress: float = 0.0):
     return traj
 
 
-def test_three_replans_reach_the_goal_without_collision_or_jumps():
-    async def scenario(gs, service, sim, world):
-        result = await fly_to_goal(gs, world, sim.home_enu, SPEED, 2.0, replans=3)
-        return result, list(service.sent), list(gs.statuses)
+def status_errors(statuses) -> list[str]:
+    """Every error the status messages carried (status coalesces them into its
+    event log)."""
+    return sorted({e["message"] for s in statuses for e in s.get("events", ())
+                   if e["level"] == "error"})
 
-    (result, sent, statuses), report = run_flight(scenario)
+
+def test_three_replans_reach_the_goal_without_collision_or_jumps_and_are_recorded(tmp_path,
+                                                                                   caplog):
+    """The main job, checked at the vehicle and in the flight record: three replans
+    on the way, no collision, no jump, offboard only after a pre-stream; every
+    setpoint sent and every input recorded (in files small enough to rotate)."""
+    caplog.set_level(logging.INFO, "rota")  # as `rota-companion run` logs
+    async def scenario(gs, service, sim, world):
+        t0 = time.monotonic()
+        result = await fly_to_goal(gs, world, sim.home_enu, SPEED, 2.0, replans=3)
+        t1 = time.monotonic()
+        await gs.command_confirmed("land")
+        return result, service, list(gs.statuses), (t0, t1)
+
+    (result, service, statuses, window), report = run_flight(
+        scenario, state_dir=tmp_path, record={"max_file_mb": 0.05})
     assert not report.collisions
-    t = np.array([s[0] for s in sent])
-    p = np.array([s[1] for s in sent])
-    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    dt = np.diff(t)
-    # consecutive setpoints never jump: at most the speed limit times the period
-    # (plus the takeover blend's own small velocity, at most 0.4 m/s)
-    assert np.all(step <= (SPEED + 0.4) * dt + 1e-3), step.max()
+    # what the vehicle received: no gap over 100 ms, no jump, inside the fence
+    figures = check_stream(report.setpoints, SPEED + blend_speed(1.0),
+                           ((-30.0, -30.0, -1.0), (30.0, 30.0, 5.0)), report.home_enu, window)
+    print("vehicle side:", figures.summary())
+    assert not figures.problems(), figures.summary()
     ids = {s.get("trajectory_id") for s in statuses} - {None}
     assert {"plan-0", "plan-1", "plan-2", "plan-3"} <= ids
     # offboard only after a pre-stream: the state sequence and the vehicle agree
     states = [s["state"] for s in statuses]
     assert "prestream" in states and states.index("prestream") < states.index("offboard")
     assert any("OFFBOARD" in e for _, e in report.events)
+    # the flight record
+    files = sorted((tmp_path / "records").glob("sim-*.mcap"))
+    assert files and files == sorted(service.recorder.files)
+    assert len(files) >= 2  # 50 kB files: the flight rotated
+    assert service.recorder.dropped == 0
+    got = list(read(files))
+    kinds = Counter(c for c, _, _ in got)
+    # (a replan the service refused is planned again: every one sent is recorded)
+    assert kinds["trajectory"] == result["trajectories_published"] >= 4 and kinds["map"] == 1
+    # plan-0 is re-timed when it arrives and again when offboard begins
+    assert {m["id"] for c, _, m in got if c == "retimed"} == {f"plan-{k}" for k in range(4)}
+    assert kinds["config"] == 1 and kinds["command"] >= 4  # arm, takeoff, start, land
+    sent = list(service.sent)  # every setpoint the stream sent, in order, with its source
+    rec = [m for c, _, m in got if c == "setpoint"]
+    assert len(rec) == len(sent) > 500
+    assert np.allclose([m["p"] for m in rec], [p for _, p in sent])
+    assert {"plan-0", "plan-1"} <= {m["source"] for m in rec}
+    assert kinds["telemetry"] > 100 and kinds["status"] > 20
+    logs = [m["message"] for c, _, m in got if c == "log"]
+    assert any("autopilot connected" in m for m in logs)
+    assert any("end of trajectory" in m for m in logs)
+    stamps = [s for _, s, _ in got]
+    assert np.all(np.diff(stamps) > -0.5)  # near time order across files
 
 
 def test_malformed_trajectory_mid_flight_is_rejected_and_flight_continues():
@@ -99,10 +147,11 @@ def test_malformed_trajectory_mid_flight_is_rejected_and_flight_continues():
         bad2 = trajectory_message(to_local(traj, home), "far")
         bad2["control_points"] = (np.asarray(bad2["control_points"]) + [0, 0, 40]).tolist()
         gs.publish("trajectory", bad2)
-        await asyncio.sleep(1.0)
-        errors = [s["last_error"]["message"] for s in gs.statuses if s.get("last_error")]
+        await gs.wait_for(lambda s: len([e for e in status_errors(gs.statuses)
+                                         if "'bad'" in e or "'far'" in e or "[4][1]" in e]) >= 2,
+                          10, "both refusals on status")
+        errors = status_errors(gs.statuses)
         mid = gs.status
-        await gs.wait_for(lambda s: s.get("command") == "hold", 40, "end of trajectory")
         return errors, mid
 
     (errors, mid), report = run_flight(scenario)
@@ -119,14 +168,19 @@ def test_planner_silence_ends_in_a_hold():
                           s["hold_reason"], 20, "the planner-silence hold")
         t_hold = time.monotonic()
         await gs.wait_for(lambda s: s.get("command") == "hold", 10, "the stop")
-        await asyncio.sleep(1.0)
-        state = sim.state()
+        # PX4 overshoots a stop and settles in a few seconds (docs/sitl.md): the
+        # vehicle must come to rest, holding, within 8 s of the hold
+        deadline = time.monotonic() + 8.0
+        while np.linalg.norm((state := sim.state())["velocity"]) >= 0.3:
+            assert time.monotonic() < deadline, state
+            await asyncio.sleep(0.1)
         return gs.status, time.monotonic() - t_hold, state
 
-    (status, _, state), report = run_flight(
+    (status, settle_s, state), report = run_flight(
         scenario, safety={"planner_timeout_s": 2.0})
     assert status["command"] == "hold" and status["state"] == "offboard"
-    assert np.linalg.norm(state["velocity"]) < 0.5  # stopped, holding
+    assert state["mode"] == "OFFBOARD" and np.linalg.norm(state["velocity"]) < 0.3
+    print(f"at rest {settle_s:.1f} s after the hold began")
     assert not report.collisions
 
 
@@ -136,7 +190,7 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
     mav, zport = free_udp_port(), free_tcp_port()
     cfg = demo_config(mav, zport, SPEED, str(tmp_path))
     cfg_file = tmp_path / "companion.toml"
-    cfg_file.write_text(_toml(cfg))
+    cfg_file.write_text(to_toml(cfg))
 
     async def scenario(gs, sim):
         await start_flight(gs, sim, world, "t", 0.3)
@@ -160,7 +214,7 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
         proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config",
                                  str(cfg_file)], stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, env=env)
-        gs = GroundStation(cfg, f"tcp/127.0.0.1:{zport}")
+        gs = GroundStation.for_service(cfg, f"tcp/127.0.0.1:{zport}", wait_s=30)
         try:
             asyncio.run(scenario(gs, sim))
             proc.send_signal(signal.SIGTERM)
@@ -180,15 +234,6 @@ def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
     assert "PX4 Hold" in out
     assert state["mode"] == "AUTO_LOITER" and state["armed"]
     assert not sim.report.collisions
-
-
-def _toml(cfg) -> str:
-    lines = []
-    for section, values in cfg.to_dict().items():
-        lines.append(f"[{section}]")
-        for k, v in values.items():
-            lines.append(f"{k} = {json.dumps(list(v) if isinstance(v, tuple) else v)}")
-    return "\n".join(lines) + "\n"
 
 
 def test_closest_approach_helper_measures_clearance():
@@ -230,7 +275,10 @@ def test_auto_start_flies_without_commands_and_tracking_error_brakes():
     async def scenario(gs, service, sim, world):
         home = sim.home_enu
         await gs.wait_for(lambda s: s["state"] == "ready", 40, "ready")
-        traj = plan(world, v_max=SPEED, a_max=2.0)
+        # from where the takeoff ends: above the vehicle at the takeoff altitude
+        up = [home[0], home[1], DEMO_ALTITUDE_M]
+        traj = await plan_async(world, v_max=SPEED, a_max=2.0, start=up,
+                                goal=[world.goal[0], world.goal[1], DEMO_ALTITUDE_M])
         gs.publish("trajectory", trajectory_message(to_local(traj, home), "auto"))
         # the plan may last only a moment before the tight threshold brakes it
         await gs.wait_for(lambda s: s.get("hold_reason") and "tracking error" in

@@ -29,7 +29,7 @@ CFG = from_dict({"safety": {"geofence_min": [-50.0, -50.0, -5.0]}})
 
 
 def payload(traj, **kw) -> bytes:
-    d = trajectory_to_dict(TrajectoryMessage(traj, id="t1"))
+    d = trajectory_to_dict(TrajectoryMessage(traj, id="t1", stamp=time.time()))
     d.update(kw)
     return json.dumps(d).encode()
 
@@ -100,8 +100,16 @@ def test_valid_trajectory_is_accepted_in_enu():
     assert np.allclose(inc.trajectory.position(1.0), ned_to_enu(traj.position(1.0)))
 
 
+def test_unstamped_trajectories_need_a_planner_without_a_clock():
+    d = trajectory_to_dict(TrajectoryMessage(bspline(2, 6, 1.0), id="t"))
+    with pytest.raises(Rejected, match="no stamp"):
+        parse_trajectory(json.dumps(d).encode(), CFG)
+    cfg = from_dict({"safety": {"require_stamp": False, "geofence_min": [-50.0, -50.0, -5.0]}})
+    assert parse_trajectory(json.dumps(d).encode(), cfg).stamp is None
+
+
 def test_missing_frame_uses_the_configured_input_frame():
-    d = trajectory_to_dict(TrajectoryMessage(bspline(2, 6, 1.0)))
+    d = trajectory_to_dict(TrajectoryMessage(bspline(2, 6, 1.0), stamp=time.time()))
     del d["frame"]
     cfg = from_dict({"safety": {"input_frame": "NED", "geofence_min": [-50.0, -50.0, -5.0]}})
     assert parse_trajectory(json.dumps(d).encode(), cfg).frame == "NED"
@@ -163,6 +171,28 @@ def test_takeover_offset_blends_out_without_jumps():
     assert np.linalg.norm(np.diff(p, axis=0), axis=1).max() <= 2.0 * 0.02 + 1e-6 + 0.5 * 0.02
 
 
+def test_a_late_takeover_starts_from_the_full_gap():
+    """Regression: the blend faded from the plan's t0, so a takeover on a tick well
+    after t0 (a busy machine, a start from a hold) began with the gap partly faded:
+    the stream refused a 0.11 m step in 22 ms and braked. Faded from the takeover,
+    the first setpoint is the last one commanded."""
+    from dataclasses import replace
+
+    plan = _plan()
+    gap = np.array([0.3, -0.2, 0.1])
+    late = plan.t0 + 0.8  # (the blend takes 2.1 s here)
+    old = plan.command(late).position + gap  # what was commanded at the takeover
+    blend = blend_time(float(np.linalg.norm(gap)))
+    then = replace(plan, offset=gap, blend_s=blend)  # faded from t0, as before
+    now = replace(plan, offset=gap, blend_s=blend, blend_t0=late)
+    assert np.linalg.norm(then.command(late).position - old) > 0.05
+    assert np.allclose(now.command(late).position, old)
+    t = late + np.arange(0, 3.0, 0.02)
+    p = np.array([now.command(x).position for x in t])
+    assert np.linalg.norm(np.diff(p, axis=0), axis=1).max() <= 2.0 * 0.02 + 0.5 * 0.02
+    assert np.allclose(p[-1], plan.command(t[-1]).position)
+
+
 def test_brake_along_the_path_stops_within_the_braking_distance():
     plan = _plan()
     now = 10.0 + plan.result.duration / 2
@@ -193,7 +223,7 @@ def test_sd_notify_never_blocks_when_nobody_reads(tmp_path, monkeypatch):
     import socket
     import time as _time
 
-    from companion.service import Notifier
+    from companion.supervisor import Notifier
 
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(tmp_path / "n"))  # bound, never read
@@ -204,3 +234,74 @@ def test_sd_notify_never_blocks_when_nobody_reads(tmp_path, monkeypatch):
         notifier.notify("STATUS=x" * 50)
     assert _time.monotonic() - start < 2.0
     sock.close()
+
+
+def test_status_and_telemetry_follow_a_setpoint():
+    """The publisher waits for the stream's beat and publishes right after it (its
+    work then falls in the stream's idle time); without beats it still publishes."""
+    import asyncio
+
+    from companion.status import Publisher
+
+    log: list[str] = []
+
+    class Pub:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def put(self, payload: bytes) -> None:
+            log.append(self.name)
+
+    pubs = {name: Pub(name) for name in ("status", "telemetry")}
+    publisher = Publisher(pubs, lambda: {"s": 1}, lambda: {"t": 1})
+
+    async def beats(beat: asyncio.Event) -> None:
+        while True:
+            await asyncio.sleep(0.002)
+            log.append("beat")
+            beat.set()
+
+    async def run(with_beats: bool) -> None:
+        beat = asyncio.Event()
+        tasks = [asyncio.create_task(publisher.run(20.0, 5.0, beat))]
+        if with_beats:
+            tasks.append(asyncio.create_task(beats(beat)))
+        while log.count("telemetry") < 8:
+            await asyncio.sleep(0.01)
+        for t in tasks:
+            t.cancel()
+
+    asyncio.run(run(True))
+    first = [i for i, what in enumerate(log) if what == "telemetry"]
+    assert all(log[i - 1] == "beat" for i in first), log  # right after a setpoint
+    assert log.count("status") >= 1
+    log.clear()
+    asyncio.run(run(False))  # a stream being restarted: status goes on
+    assert log.count("telemetry") >= 8 and "beat" not in log
+
+
+def test_the_publisher_stops_when_cancelled_as_a_beat_arrives():
+    """Regression: with asyncio.wait_for (Python 3.11) a cancellation that came with
+    the beat was swallowed; the publisher went on and the service could not stop
+    (SIGTERM, 30 s, on a busy machine)."""
+    import asyncio
+
+    from companion.status import Publisher
+
+    class Pub:
+        def put(self, payload: bytes) -> None:
+            pass
+
+    publisher = Publisher({"status": Pub(), "telemetry": Pub()}, dict, dict)
+
+    async def run() -> None:
+        beat = asyncio.Event()
+        task = asyncio.create_task(publisher.run(10.0, 5.0, beat))
+        await asyncio.sleep(0.15)  # past its due time: waiting for the beat
+        beat.set()
+        await asyncio.sleep(0)  # the beat's waiter is done ...
+        task.cancel()  # ... as the cancellation comes
+        done, _ = await asyncio.wait({task}, timeout=1.0)
+        assert task in done and task.cancelled()
+
+    asyncio.run(run())

@@ -1,4 +1,4 @@
-"""Bad inputs get clear errors naming the field (issue #2); JSON round trips."""
+"""Bad inputs get clear errors naming the field; JSON round trips."""
 
 from __future__ import annotations
 

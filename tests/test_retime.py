@@ -1,4 +1,4 @@
-"""The re-timing entry point (issue #2): boundary states, shorter/longer, fallback."""
+"""The re-timing entry point: boundary states, shorter/longer, fallback."""
 
 from __future__ import annotations
 

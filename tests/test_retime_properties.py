@@ -1,4 +1,4 @@
-"""Property tests (issue #2): random trajectories of all three kinds, re-timed,
+"""Property tests: random trajectories of all three kinds, re-timed,
 then measured independently from finite differences of re-timed positions."""
 
 from __future__ import annotations

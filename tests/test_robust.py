@@ -1,4 +1,4 @@
-"""Braking zones and chance-constrained speed limits in the re-time (issue #3)."""
+"""Braking zones and chance-constrained speed limits in the re-time."""
 
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ from sitl.dynamics import (
     rotation_from_thrust_yaw,
 )
 from sitl.estimation import EstimationErrorParams, PositionErrorModel, error_std, std_for_speed
+from tests.kinematics import min_jerk
 
 DT = 0.004
 NAN3 = np.full(3, np.nan)
@@ -42,14 +43,6 @@ def _sim(setpoint_fn, seconds, start=None, quad=None, ctrl=None):
         model.step(DT, f, pc.yaw_rate_command(s.yaw, sp))
         pos[k], vel[k], thr[k] = s.position, s.velocity, s.thrust
     return t, pos, vel, thr, model
-
-
-def _min_jerk(t: float, duration: float, dist: float) -> tuple[float, float, float]:
-    s = min(max(t / duration, 0.0), 1.0)
-    p = dist * (10 * s**3 - 15 * s**4 + 6 * s**5)
-    v = dist / duration * (30 * s**2 - 60 * s**3 + 30 * s**4)
-    a = dist / duration**2 * (60 * s - 180 * s**2 + 120 * s**3)
-    return p, v, a
 
 
 def test_takeoff_and_hover_converges():
@@ -98,15 +91,15 @@ def test_feed_forward_tracking_beats_position_only():
     start = np.array([0.0, 0.0, -5.0])
 
     def full(t):
-        p, v, a = _min_jerk(t, 5.0, 10.0)
+        p, v, a = min_jerk(t, 5.0, 10.0)
         return Setpoint(start + [p, 0, 0], np.array([v, 0, 0.0]), np.array([a, 0, 0.0]))
 
     def pos_only(t):
-        p, _, _ = _min_jerk(t, 5.0, 10.0)
+        p, _, _ = min_jerk(t, 5.0, 10.0)
         return Setpoint(start + [p, 0, 0], NAN3.copy(), NAN3.copy())
 
     t, pos_ff, *_ = _sim(full, 7.0, start=start)
-    ref = np.array([start + [_min_jerk(tk - DT, 5.0, 10.0)[0], 0, 0] for tk in t])
+    ref = np.array([start + [min_jerk(tk - DT, 5.0, 10.0)[0], 0, 0] for tk in t])
     err_ff = np.linalg.norm(pos_ff - ref, axis=1).max()
     _, pos_p, *_ = _sim(pos_only, 7.0, start=start)
     err_p = np.linalg.norm(pos_p - ref, axis=1).max()
@@ -160,8 +153,8 @@ def test_error_std_formula_and_floor():
     p = EstimationErrorParams(slope_s=0.2, offset_m=-0.1, min_std_m=0.05)
     assert std_for_speed(p, [0.0, 0.5, 1.0, 5.0]) == pytest.approx([0.05, 0.05, 0.1, 0.9])
     v = np.array([[3.0, 4.0, 0.0]])  # speed 5
-    assert error_std(p, v) == pytest.approx(np.full((1, 3), 0.9))
-    pa = EstimationErrorParams(speed_mode="axis")
+    assert error_std(p, v) == pytest.approx(np.array([[0.9, 0.9, 0.45]]))  # vertical: half
+    pa = EstimationErrorParams(speed_mode="axis", vertical_scale=1.0)
     assert error_std(pa, np.array([3.0, 0.0, -1.0])) == pytest.approx([0.5, 0.02, 0.1])
     assert np.all(error_std(EstimationErrorParams(enabled=False), v) == 0.0)
 
@@ -173,10 +166,10 @@ def test_gauss_markov_statistics_and_correlation():
     vel = np.array([4.0, 0.0, 0.0])  # sigma = 0.7
     dt = 0.02
     e = np.array([model.step(dt, vel) for _ in range(60_000)])
-    assert e.std(axis=0) == pytest.approx([0.7] * 3, rel=0.05)
+    assert e.std(axis=0) == pytest.approx([0.7, 0.7, 0.35], rel=0.05)
     assert np.abs(e.mean(axis=0)).max() < 0.05
     lag = int(round(0.5 / dt))
-    z = e / 0.7
+    z = e / [0.7, 0.7, 0.35]
     rho = np.mean(z[:-lag] * z[lag:])
     assert rho == pytest.approx(math.exp(-1.0), abs=0.05)
     assert np.mean(z[:-1] * z[1:]) > 0.9  # strongly correlated from step to step

@@ -1,5 +1,5 @@
 """With lambda close to 0, ROTA's duration matches toppra's time-optimal duration
-for the same path and limits within 1 % (issue #2)."""
+for the same path and limits within 1 %."""
 
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
 """The same end-to-end flight through the flight service against each vehicle
-backend: the `sitl` vehicle always, real PX4 SITL (SIH) when ``ROTA_PX4_BUILD``
-names a PX4 build (issue #5); otherwise that case is skipped and says why."""
+backend: the `sitl` vehicle (calibrated to PX4's SIH quadrotor) always, real PX4
+SITL (SIH) when ``ROTA_PX4_BUILD`` names a PX4 build; otherwise that case is
+skipped and says why. Assertions run inside the vehicle's ``with`` block, so a
+failure keeps PX4's console and flight logs (see sitl/px4.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from companion.demo import demo_config, free_tcp_port, running, take_off, trajec
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import straight_line
 from sitl.process import SimProcess
-from sitl.px4 import PX4_PORT, Px4Sitl, px4_build, skip_reason
+from sitl.px4 import Px4Sitl, px4_build, skip_reason
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 
@@ -30,8 +32,8 @@ def vehicle(backend: str):
         build = px4_build()
         if build is None:
             pytest.skip(skip_reason())
-        with Px4Sitl(build):
-            yield PX4_PORT
+        with Px4Sitl(build) as px4:
+            yield px4.port
 
 
 @pytest.mark.parametrize("backend", ["sim", "px4"])
@@ -58,4 +60,6 @@ def test_service_flies_10_m_and_lands(backend):
                 return p0, p1
 
         p0, p1 = asyncio.run(main())
-    assert np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])) < 0.5
+        miss = float(np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])))
+        print(f"{backend}: end miss {miss:.3f} m")
+        assert miss < 0.5

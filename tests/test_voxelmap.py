@@ -299,16 +299,40 @@ def test_from_dict_missing_key() -> None:
     assert e.value.field == "resolution"
 
 
-def test_cached_tree_and_cropped_tree_agree(monkeypatch) -> None:
-    """Small maps keep one k-d tree; large ones crop per query (Alg. 1): same answers."""
+def test_cached_index_and_cropped_index_agree(monkeypatch) -> None:
+    """Small maps keep one brick index; large ones crop per query (Alg. 1): same answers."""
     import rota.voxelmap as vm
 
     rng = np.random.default_rng(3)
     m = VoxelMap.from_points(rng.uniform(-5, 5, (4000, 3)), 0.1)
     q = rng.uniform(-7, 7, (500, 3))
     cached = m.nearest(q, bbox_margin=1.5)
-    monkeypatch.setattr(vm, "TREE_CACHE_LIMIT", 0)
+    monkeypatch.setattr(vm, "INDEX_CACHE_LIMIT", 0)
     cropped = VoxelMap(m.resolution, m.occupied).nearest(q, bbox_margin=1.5)
     np.testing.assert_array_equal(cached[0], cropped[0])
     np.testing.assert_array_equal(cached[1], cropped[1])
     assert np.isinf(cached[0]).any() and np.isfinite(cached[0]).any()
+
+
+@pytest.mark.parametrize("res", [0.1, 0.25])
+def test_nearest_along_a_path_matches_brute_force(res: float) -> None:
+    """Consecutive query points close together (a path: each search starts from the
+    previous point's obstacle), through walls, pillars and empty space, on and off
+    the grid's faces: the exact nearest centre within the margin, never a farther one."""
+    rng = np.random.default_rng(7)
+    wall = np.stack(np.meshgrid(np.arange(-3, 3, res / 2), [1.0], np.arange(0, 2, res / 2)),
+                    -1).reshape(-1, 3)
+    pillars = rng.uniform([-4, -4, 0], [4, 4, 2], (6, 3))
+    column = np.concatenate([p + rng.normal(0, 0.15, (300, 3)) for p in pillars])
+    m = VoxelMap.from_points(np.concatenate([wall, column]), res, origin=[0.03, -0.02, 0.0])
+    s = np.linspace(0.0, 1.0, 1500)[:, None]
+    q = np.concatenate([[-5, -5, 1] + s * [10, 9, 0.5], [5, 4, 1.5] - s * [10, 0, 1.5]])
+    q[::7] = np.round(q[::7] / res) * res + 0.03  # on voxel faces
+    bd, _ = _brute_nearest(m.occupied, q)
+    for margin in (0.4, 1.5, math.inf):
+        d, o = m.nearest(q, bbox_margin=margin)
+        near = bd < margin
+        np.testing.assert_allclose(d[near], bd[near], rtol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(o[near] - q[near], axis=1), bd[near],
+                                   rtol=1e-12)
+        assert np.all(np.isinf(d[~near])) and np.all(np.isnan(o[~near]))

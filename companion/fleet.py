@@ -1,0 +1,190 @@
+"""``rota-companion fleet DIR``: the certificates and Zenoh configurations of a
+fleet, for mutual TLS and Zenoh's access control (``docs/security.md``).
+
+Made with the ``openssl`` command (nothing here does cryptography itself):
+
+* ``ca/``: the fleet's certificate authority (keep ``ca.key`` offline);
+* ``<vehicle>/``: each vehicle's certificate and ``zenoh.json5``: it listens on
+  loopback (for a planner on the same computer) and on mutual TLS (for the
+  network), with access control: ground stations may command and configure it,
+  its planner may send trajectories and maps, both may read status and
+  telemetry; everyone else gets nothing;
+* ``<ground station>/``: certificate and ``zenoh-<vehicle>.json5`` per vehicle (a
+  Zenoh client of that vehicle; a fleet behind a Zenoh router needs one config);
+* ``planner-<vehicle>/``: certificate and ``zenoh.json5`` for a planner on another
+  computer (a client of that vehicle).
+
+Access-control subjects are the certificates' common names (the directory names).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+LOOPBACK_PORT = 7447
+TLS_PORT = 7448
+
+
+class FleetError(RuntimeError):
+    """The fleet could not be made; the message says why."""
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """What to make: vehicle ids, ground-station names, and where vehicles are
+    reached on the network (``hosts[vehicle]``: a name or an IP address)."""
+
+    vehicles: tuple[str, ...]
+    ground_stations: tuple[str, ...] = ("gs",)
+    hosts: dict[str, str] = field(default_factory=dict)
+    key_prefix: str = "rota"
+    days: int = 825
+    loopback_port: int = LOOPBACK_PORT
+    tls_port: int = TLS_PORT
+
+    def host(self, vehicle: str) -> str:
+        return self.hosts.get(vehicle, f"{vehicle}.local")
+
+
+def _openssl(*args: str, cwd: Path) -> None:
+    exe = shutil.which("openssl")
+    if exe is None:
+        raise FleetError("the openssl command is needed (Debian/Ubuntu: apt install openssl)")
+    done = subprocess.run([exe, *args], cwd=cwd, capture_output=True, text=True)
+    if done.returncode:
+        raise FleetError(f"openssl {args[0]} failed: {done.stderr.strip()[:300]}")
+
+
+def _private(path: Path) -> None:
+    os.chmod(path, 0o600)
+
+
+def make_ca(ca_dir: Path, days: int) -> None:
+    ca_dir.mkdir(parents=True, exist_ok=True)
+    if (ca_dir / "ca.pem").exists():
+        return  # an existing fleet gains members; its CA stays
+    _openssl("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+             "-keyout", "ca.key", "-out", "ca.pem", "-days", str(days),
+             "-subj", "/CN=rota-fleet-ca", "-addext", "basicConstraints=critical,CA:TRUE",
+             "-addext", "keyUsage=critical,keyCertSign,cRLSign", cwd=ca_dir)
+    _private(ca_dir / "ca.key")
+
+
+def make_member(ca_dir: Path, out: Path, name: str, days: int,
+                names: Sequence[str] = (), ips: Sequence[str] = ()) -> None:
+    """A certificate and key for ``name`` (its common name), signed by the CA."""
+    out.mkdir(parents=True, exist_ok=True)
+    alt = [f"DNS:{n}" for n in (name, *names)] + [f"IP:{ip}" for ip in ips]
+    (out / "ext.cnf").write_text(
+        f"subjectAltName={','.join(alt)}\nbasicConstraints=CA:FALSE\n"
+        "keyUsage=critical,digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n")
+    _openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+             "-keyout", "key.pem", "-out", "req.csr", "-subj", f"/CN={name}", cwd=out)
+    _openssl("x509", "-req", "-in", "req.csr", "-CA", str(ca_dir / "ca.pem"),
+             "-CAkey", str(ca_dir / "ca.key"), "-CAcreateserial", "-out", "cert.pem",
+             "-days", str(days), "-extfile", "ext.cnf", cwd=out)
+    for tmp in ("req.csr", "ext.cnf"):
+        (out / tmp).unlink()
+    _private(out / "key.pem")
+    shutil.copy(ca_dir / "ca.pem", out / "ca.pem")
+
+
+def _tls(directory: str) -> dict[str, Any]:
+    """Zenoh's TLS link settings for a member whose files are in ``directory``."""
+    return {"root_ca_certificate": f"{directory}/ca.pem", "enable_mtls": True,
+            "listen_private_key": f"{directory}/key.pem",
+            "listen_certificate": f"{directory}/cert.pem",
+            "connect_private_key": f"{directory}/key.pem",
+            "connect_certificate": f"{directory}/cert.pem"}
+
+
+def access_control(prefix: str, vehicle: str, ground_stations: Sequence[str],
+                   planner: str) -> dict[str, Any]:
+    """The vehicle's Zenoh access control: deny by default; the rules below."""
+    k = f"{prefix}/{vehicle}"
+    out = [f"{k}/status", f"{k}/telemetry", f"{k}/retimed"]
+    rules = [
+        {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
+         "messages": ["declare_subscriber", "put"], "key_exprs": out},
+        {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
+         "messages": ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
+                      "reply"], "key_exprs": [f"{k}/alive", f"{prefix}/*/alive"]},
+        {"id": "plan", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
+         "key_exprs": [f"{k}/trajectory", f"{k}/map"]},
+        {"id": "command", "permission": "allow", "flows": ["ingress", "egress"],
+         "messages": ["query", "reply", "declare_queryable"],
+         "key_exprs": [f"{k}/cmd/*", f"{k}/config", f"{k}/estimator"]},
+    ]
+    subjects = [{"id": "ground-stations", "cert_common_names": list(ground_stations)},
+                {"id": "planner", "cert_common_names": [planner]},
+                # a planner on the vehicle's own computer: the plain loopback listener
+                {"id": "local", "interfaces": ["lo"], "link_protocols": ["tcp"]}]
+    policies = [{"rules": ["read", "alive", "command", "plan"], "subjects": ["ground-stations"]},
+                {"rules": ["read", "alive", "plan"], "subjects": ["planner", "local"]}]
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}
+
+
+def _write(path: Path, title: str, config: dict[str, Any]) -> None:
+    path.write_text(f"// {title}\n// Made by `rota-companion fleet`; see docs/security.md.\n"
+                    + json.dumps(config, indent=2) + "\n")
+
+
+def vehicle_config(fleet: Fleet, vehicle: str, directory: str) -> dict[str, Any]:
+    return {
+        "mode": "peer",
+        "listen": {"endpoints": [f"tcp/127.0.0.1:{fleet.loopback_port}",
+                                 f"tls/0.0.0.0:{fleet.tls_port}"]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": _tls(directory)}},
+        "access_control": access_control(fleet.key_prefix, vehicle, fleet.ground_stations,
+                                          f"planner-{vehicle}"),
+    }
+
+
+def client_config(endpoints: Sequence[str], directory: str) -> dict[str, Any]:
+    return {"mode": "client", "connect": {"endpoints": list(endpoints)},
+            "scouting": {"multicast": {"enabled": False}},
+            "transport": {"link": {"tls": _tls(directory)}}}
+
+
+def make_fleet(fleet: Fleet, out: str | Path, install_dir: str | None = None) -> list[Path]:
+    """Make (or extend) the fleet in ``out``; returns the Zenoh configs written.
+    ``install_dir``: where each member's directory will live on its computer
+    (default: where it is made), as the configs name their files."""
+    root = Path(out).resolve()
+    ca = root / "ca"
+    make_ca(ca, fleet.days)
+    written = []
+
+    def where(name: str) -> str:
+        return f"{install_dir.rstrip('/')}/{name}" if install_dir else str(root / name)
+
+    for v in fleet.vehicles:
+        host = fleet.host(v)
+        is_ip = host.replace(".", "").isdigit() or ":" in host
+        make_member(ca, root / v, v, fleet.days, names=() if is_ip else (host,),
+                    ips=("127.0.0.1", *((host,) if is_ip else ())))
+        _write(root / v / "zenoh.json5", f"Zenoh configuration of vehicle {v}",
+               vehicle_config(fleet, v, where(v)))
+        written.append(root / v / "zenoh.json5")
+        planner = f"planner-{v}"
+        make_member(ca, root / planner, planner, fleet.days)
+        _write(root / planner / "zenoh.json5", f"Zenoh configuration of {v}'s planner",
+               client_config([f"tls/{host}:{fleet.tls_port}"], where(planner)))
+        written.append(root / planner / "zenoh.json5")
+    for gs in fleet.ground_stations:
+        make_member(ca, root / gs, gs, fleet.days)
+        for v in fleet.vehicles:
+            path = root / gs / f"zenoh-{v}.json5"
+            _write(path, f"Zenoh configuration of ground station {gs} for vehicle {v}",
+                   client_config([f"tls/{fleet.host(v)}:{fleet.tls_port}"], where(gs)))
+            written.append(path)
+    return written

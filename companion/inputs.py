@@ -1,0 +1,271 @@
+"""Everything that arrives from Zenoh: the ``trajectory`` and ``map``
+subscriptions and the ``cmd/*``, ``config`` and ``estimator`` queryables.
+
+Zenoh calls back on its own threads. There, each input gets only constant-time
+checks: its byte size against the configured cap and a rate limit; what fails
+is dropped (a put) or refused at once (a query), and counted. What passes is
+handed to the event loop as bytes, and from there to the decoder's worker
+process; nothing is decoded on the loop. Puts are decoded one at a time per
+kind, in arrival order; only the newest few of each kind wait (:data:`BACKLOG`),
+so a flood supersedes itself. Every query gets a reply, whatever happens to it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from companion import messages as msgs
+from companion.config import Config
+from companion.decoder import DecodeFn, Decoder
+from companion.status import Reporter
+
+log = logging.getLogger("rota.companion")
+
+#: Larger puts are recorded by size only (the flight record's writer is a thread).
+RECORD_MAX_BYTES = 1_000_000
+#: Puts of each kind waiting for the decoder; older ones are dropped (counted).
+BACKLOG = {"trajectory": 4, "map": 1}
+
+#: A subscription handler: the decoded, validated input, on the event loop.
+PutHandler = Callable[[Any], None]
+#: A query handler: (name, decoded payload or None, the asking peer) -> the reply's
+#: JSON bytes. The peer is the Zenoh id the asker declares in its source info
+#: (``"unknown"`` without); the fleet's access control decides who may ask at all.
+QueryHandler = Callable[[str, Any, str], Awaitable[bytes]]
+
+
+@dataclass(frozen=True)
+class Handlers:
+    trajectory: PutHandler
+    map: PutHandler
+    command: QueryHandler
+    config: QueryHandler
+    estimator: QueryHandler
+
+
+class RateLimit:
+    """A token bucket (thread-safe): ``rate`` per second, bursts of ``burst``."""
+
+    def __init__(self, rate: float, burst: float | None = None) -> None:
+        self.rate = rate
+        self.burst = burst if burst is not None else max(1.0, rate)
+        self._tokens = self.burst
+        self._t = time.monotonic()
+        self._lock = threading.Lock()
+
+    def allow(self) -> bool:
+        with self._lock:
+            now = time.monotonic()
+            self._tokens = min(self.burst, self._tokens + (now - self._t) * self.rate)
+            self._t = now
+            if self._tokens >= 1.0:
+                self._tokens -= 1.0
+                return True
+            return False
+
+
+class Inputs:
+    """Declares the service's Zenoh inputs under ``key`` and dispatches them."""
+
+    def __init__(self, session: zenoh.Session, cfg: Callable[[], Config],
+                 loop: asyncio.AbstractEventLoop, handlers: Handlers, decoder: Decoder,
+                 report: Reporter) -> None:
+        self._cfg = cfg
+        self._loop = loop
+        self._h = handlers
+        self._decoder = decoder
+        self.report = report
+        key = cfg().key
+        self._key = key
+        self._limits: dict[str, RateLimit] = {}
+        self._drops: Counter[str] = Counter()  # (input: reason) -> count since the last report
+        self._drops_lock = threading.Lock()
+        self.dropped: Counter[str] = Counter()  # all time, per input
+        self._pending: dict[str, deque[tuple[bytes, DecodeFn | None]]] = {}
+        self._wake: dict[str, asyncio.Event] = {}
+        self._background: set[asyncio.Task] = set()
+        #: the flight record: every put as received (``record(channel, payload)``)
+        self.record: Callable[[str, Any], None] = lambda channel, payload: None
+        self._objs: list[Any] = [
+            session.declare_subscriber(key("trajectory"), self._put("trajectory")),
+            session.declare_subscriber(key("map"), self._put("map")),
+            session.declare_queryable(key("cmd", "*"), self._query("cmd", handlers.command)),
+            session.declare_queryable(key("config"), self._query("config", handlers.config)),
+            session.declare_queryable(key("estimator"),
+                                      self._query("estimator", handlers.estimator)),
+        ]
+
+    # ------------------------------------------------------------ Zenoh threads
+    def _limit(self, name: str, rate: float) -> RateLimit:
+        lim = self._limits.get(name)
+        if lim is None or lim.rate != rate:
+            lim = self._limits[name] = RateLimit(rate)
+        return lim
+
+    def _drop(self, what: str, reason: str) -> None:
+        with self._drops_lock:
+            self._drops[f"{what}: {reason}"] += 1
+            self.dropped[what] += 1
+
+    def admit(self, what: str, size: int, cap: int, rate: float) -> bool:
+        """The constant-time checks of an input of ``size`` bytes (any thread)."""
+        if size > cap:
+            self._drop(what, f"over the {cap}-byte cap")
+            return False
+        if not self._limit(what, rate).allow():
+            self._drop(what, f"over {rate:g} per second")
+            return False
+        return True
+
+    def deliver(self, what: str, payload: bytes, fn: DecodeFn | None = None) -> None:
+        """Hand an admitted put to the loop (any thread); ``fn`` decodes it."""
+        self._loop.call_soon_threadsafe(self._arrived, what, payload, fn)
+
+    def _put(self, what: str) -> Callable[[zenoh.Sample], None]:
+        def callback(sample: zenoh.Sample) -> None:
+            i = self._cfg().inputs
+            cap, rate = (i.max_map_bytes, i.max_maps_per_s) if what == "map" else \
+                (i.max_trajectory_bytes, i.max_messages_per_s)
+            if self.admit(what, len(sample.payload), cap, rate):
+                self.deliver(what, sample.payload.to_bytes())
+
+        return callback
+
+    def _query(self, what: str, handler: QueryHandler) -> Callable[[zenoh.Query], None]:
+        def callback(query: zenoh.Query) -> None:
+            name = str(query.key_expr).rsplit("/", 1)[-1] if what == "cmd" else what
+            i = self._cfg().inputs
+            size = 0 if query.payload is None else len(query.payload)
+            # (unknown command names share one bucket: a flood of made-up names must
+            # not grow the table of limits)
+            label = (f"cmd/{name}" if name in msgs.COMMANDS else "cmd/unknown") \
+                if what == "cmd" else what
+            if not self.admit(label, size, i.max_query_bytes, i.max_queries_per_s):
+                self._refuse(query, what, name, f"refused: over {i.max_queries_per_s:g} "
+                             f"queries per second or {i.max_query_bytes} bytes")
+                return
+            payload = query.payload.to_bytes() if size else None
+            info = query.source_info
+            peer = str(info.source_id.zid) if info is not None else "unknown"
+            self._loop.call_soon_threadsafe(self._answer, handler, query, what, name, payload,
+                                            peer)
+
+        return callback
+
+    def _reply_key(self, what: str, name: str) -> str:
+        """A concrete key that intersects the query's (which may hold wildcards)."""
+        if what != "cmd":
+            return self._key(what)
+        plain = name and not any(c in name for c in "*$?#")
+        return self._key("cmd", name if plain else "unknown")
+
+    def _refuse(self, query: zenoh.Query, what: str, name: str, message: str) -> None:
+        body = msgs.envelope(msgs.REPLY, command=name, ok=False, message=message)
+        reply(query, self._reply_key(what, name), json.dumps(body).encode())
+
+    # -------------------------------------------------------------- event loop
+    def _arrived(self, what: str, payload: bytes, fn: DecodeFn | None) -> None:
+        self.record(what, payload if len(payload) <= RECORD_MAX_BYTES else
+                    {"bytes": len(payload), "not_recorded": "larger than "
+                     f"{RECORD_MAX_BYTES} bytes"})
+        queue = self._pending.setdefault(what, deque())
+        if len(queue) >= BACKLOG.get(what, 1):
+            queue.popleft()
+            self._drop(what, "superseded by newer ones before it was decoded")
+        queue.append((payload, fn))
+        self._wake.setdefault(what, asyncio.Event()).set()
+
+    async def consume(self, what: str) -> None:
+        """Decode and hand over the newest ``what`` input, one at a time (a task)."""
+        wake = self._wake.setdefault(what, asyncio.Event())
+        handler = self._h.map if what == "map" else self._h.trajectory
+        queue = self._pending.setdefault(what, deque())
+        while True:
+            if not queue:
+                wake.clear()
+                await wake.wait()
+                continue
+            payload, fn = queue.popleft()
+            try:
+                obj = await self._decoder.decode(what, payload, fn)
+            except msgs.Rejected as exc:
+                self.report.error(what, str(exc))
+                continue
+            handler(obj)
+
+    def kinds(self) -> list[str]:
+        """The put inputs that need a :meth:`consume` task."""
+        return ["trajectory", "map"]
+
+    def _answer(self, handler: QueryHandler, query: zenoh.Query, what: str, name: str,
+                payload: bytes | None, peer: str) -> None:
+        async def answer() -> None:
+            body = None
+            try:
+                request = None
+                if payload and what != "cmd":
+                    request = await self._decoder.decode("query", payload)
+                body = await handler(name, request, peer)
+            except msgs.Rejected as exc:
+                self.report.error(what, str(exc))
+                body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
+                                                message=str(exc))).encode()
+            except Exception as exc:  # noqa: BLE001 - every query gets a reply
+                log.exception("answering %s %s", what, name)
+                message = f"internal error: {type(exc).__name__}: {exc}"
+                self.report.error(what, message)
+                body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
+                                                message=message)).encode()
+            finally:
+                if body is None:  # cancelled (shutdown): still answer
+                    body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
+                                                    message="service stopping")).encode()
+                reply(query, self._reply_key(what, name), body)
+
+        task = asyncio.ensure_future(answer())
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+    async def report_drops(self) -> None:
+        """Once a second: what was dropped or refused, in one error (a task)."""
+        while True:
+            await asyncio.sleep(1.0)
+            with self._drops_lock:
+                drops, self._drops = self._drops, Counter()
+            # a newer message superseding an older one is how a fast planner works;
+            # a message refused for its size or rate is an error
+            superseded = {r: n for r, n in drops.items() if "superseded" in r}
+            refused = {r: n for r, n in drops.items() if r not in superseded}
+            if refused:
+                self.report.error("inputs", "dropped: " + "; ".join(
+                    f"{n} x {reason}" for reason, n in sorted(refused.items())))
+            if superseded:
+                self.report.warn("inputs: " + "; ".join(
+                    f"{n} x {reason}" for reason, n in sorted(superseded.items())), "inputs")
+
+    def close(self) -> None:
+        for obj in self._objs:
+            try:
+                obj.undeclare()
+            except Exception:  # noqa: BLE001, S110 - closing anyway
+                pass
+
+
+def reply(query: zenoh.Query, key: str, payload: bytes) -> None:
+    """Answer a Zenoh query with JSON and finalise it."""
+    try:
+        query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+    except Exception as exc:  # noqa: BLE001 - the asker may be gone
+        log.debug("reply failed: %s", exc)
+    finally:
+        query.drop()

@@ -1,0 +1,114 @@
+"""The in-flight estimator's link to the service: feeding it while flying in
+offboard, saving it, and answering the ``estimator`` query
+(``docs/estimator.md``)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from companion.autopilot import Autopilot
+from companion.config import Config
+from companion.estimator import UncertaintyEstimator
+from companion.status import Reporter
+
+
+class Learning:
+    def __init__(self, estimator: UncertaintyEstimator | None, autopilot: Autopilot,
+                 flying: Callable[[], bool], track_errors: Callable[[], np.ndarray],
+                 link_timeout_s: Callable[[], float], report: Reporter) -> None:
+        self.estimator = estimator
+        self.autopilot = autopilot
+        self._flying = flying
+        self._track_errors = track_errors
+        self._link_timeout_s = link_timeout_s
+        self.report = report
+
+    async def run(self) -> None:
+        """5 Hz: feed the estimator while flying in offboard; save every 10 s."""
+        k = 0
+        while self.estimator is not None:
+            await asyncio.sleep(0.2)
+            k += 1
+            est, tel = self.estimator, self.autopilot.telemetry
+            if k % 50 == 0 and est.samples:
+                with contextlib.suppress(OSError):
+                    est.save()
+            if not (self._flying() and tel.velocity is not None
+                    and self.autopilot.link_ok(self._link_timeout_s())):
+                continue
+            errors = self._track_errors()
+            if len(errors):  # the newest tracking error, horizontal axes
+                std = tel.position_std
+                est.observe(float(np.linalg.norm(tel.velocity)), np.asarray(errors[-1])[:2],
+                            None if std is None else np.asarray(std)[:2])
+
+    def answer(self, request: Any, peer: str = "unknown",
+               file_cfg: Config | None = None) -> tuple[bool, str, dict[str, Any] | None]:
+        """The ``estimator`` query: read (None), or ``{"reset": true}``,
+        ``{"freeze": bool}``, ``{"set": {"m": .., "b": .., "memory_s": ..}}`` (memory_s
+        optional). A set may only be at least as cautious as ``file_cfg``'s model (the
+        envelope; learning may go below it, on evidence). Every change is audited and saved with the
+        estimate. Returns (ok, message, description)."""
+        ok, message = True, ""
+        est = self.estimator
+        try:
+            if est is None:
+                raise ValueError("the in-flight estimator is disabled ([estimator] enabled)")
+            if request is not None:
+                if not isinstance(request, dict) or not set(request) <= {"reset", "freeze",
+                                                                          "set"}:
+                    raise ValueError('request must be {"reset": true}, {"freeze": true|false}'
+                                     ' or {"set": {"m": number, "b": number[, "memory_s": '
+                                     'number]}}')
+                if request.get("reset"):
+                    est.reset()
+                    message = "estimate reset to the configured model"
+                if "freeze" in request:
+                    if not isinstance(request["freeze"], bool):
+                        raise ValueError("freeze: must be true or false")
+                    est.freeze(request["freeze"])
+                    message = f"estimator {'frozen' if request['freeze'] else 'learning'}"
+                if "set" in request:
+                    m, b, memory = _model(request["set"])
+                    u = file_cfg.uncertainty if file_cfg is not None else None
+                    if u is not None and (m < u.m or b < u.b or (
+                            memory is not None and memory < u.memory_s)):
+                        raise ValueError(f"m={m}, b={b}, memory_s={memory} refused: a set may "
+                                         f"only be as cautious as the config file's m={u.m}, "
+                                         f"b={u.b}, memory_s={u.memory_s} or more")
+                    est.set(m, b, memory)
+                    message = f"estimate set to m={m}, b={b}" + (
+                        "" if memory is None else f", memory_s={memory}")
+                est.save()
+                self.report.audit(f"estimator: {message} (saved: it outlives a restart)", peer)
+        except (ValueError, KeyError, TypeError, OSError) as exc:
+            ok, message = False, str(exc)
+            self.report.error("estimator", message)
+        return ok, message, est.describe() if est is not None else None
+
+    def save(self) -> None:
+        if self.estimator is not None:
+            with contextlib.suppress(OSError):
+                self.estimator.save()
+
+
+def _model(values: Any) -> tuple[float, float, float | None]:
+    """(m, b, memory_s or None) of a set request, finite numbers."""
+    if not isinstance(values, dict) or not {"m", "b"} <= set(values) <= {"m", "b", "memory_s"}:
+        raise ValueError('set: must be {"m": number, "b": number[, "memory_s": number]}')
+    out = []
+    for name in ("m", "b", "memory_s"):
+        v = values.get(name)
+        if name == "memory_s" and v is None:
+            out.append(None)
+            continue
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ValueError(f"set: {name} must be a finite number, got {v!r}")
+        out.append(float(v))
+    return out[0], out[1], out[2]

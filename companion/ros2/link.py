@@ -1,0 +1,131 @@
+"""The service on the ROS 2 graph: subscriptions for the planner's topics, publishers
+for status and the re-timed trajectory, and the liveliness tokens the layout
+needs so ROS tools (and bridges) see them.
+
+Zenoh callbacks only hand the raw payload on: ``deliver(kind, decode_fn, payload)``
+with one of :mod:`companion.ros2.decode`'s functions. Decoding happens wherever
+``deliver`` sends it (the service's decoding worker), never on Zenoh's thread.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from companion.ros2 import decode
+from companion.ros2.encode import retimed_cdr_from_json, status_cdr
+from companion.ros2.layout import Endpoint, RmwZenoh, make_layout
+from companion.ros2.settings import Ros2Settings
+from companion.ros2.types import MULTIDOF, PATH, POINTCLOUD, STRING
+
+log = logging.getLogger("rota.companion")
+
+#: ``deliver(kind, decode_fn, payload)``: kind is bspline, path, multidof or pointcloud;
+#: ``decode_fn(payload, cfg)`` returns a messages.Incoming or a VoxelMap, or raises
+#: messages.Rejected.
+Deliver = Callable[[str, Callable[..., Any], bytes], None]
+
+
+def input_kinds(s: Ros2Settings) -> dict[str, tuple[str, str, Callable[..., Any]]]:
+    """kind -> (topic, ROS type, decoder) of every ROS input, its topic "" when off."""
+    return {"bspline": (s.bspline_topic, s.bspline_type, decode.decode_bspline),
+            "path": (s.path_topic, PATH, decode.decode_path),
+            "multidof": (s.multidof_topic, MULTIDOF, decode.decode_multidof),
+            "pointcloud": (s.pointcloud_topic, POINTCLOUD, decode.decode_pointcloud)}
+
+
+def inputs(s: Ros2Settings) -> list[tuple[str, Endpoint, Callable[..., Any]]]:
+    """(kind, endpoint, decoder) of every configured input topic."""
+    return [(kind, Endpoint("MS", topic, typename), fn)
+            for kind, (topic, typename, fn) in input_kinds(s).items() if topic]
+
+
+def outputs(s: Ros2Settings) -> dict[str, Endpoint]:
+    table = {"status": (s.status_topic, STRING), "retimed": (s.retimed_topic, MULTIDOF)}
+    return {name: Endpoint("MP", topic, typename)
+            for name, (topic, typename) in table.items() if topic}
+
+
+class Ros2Link:
+    """Declares everything on ``session``; ``close()`` undeclares it."""
+
+    def __init__(self, session: zenoh.Session, settings: Ros2Settings,
+                 deliver: Deliver) -> None:
+        self.settings = settings
+        self.layout = make_layout(settings, str(session.zid()))
+        self._deliver = deliver
+        self._objs: list[Any] = []
+        ins = inputs(settings)
+        outs = outputs(settings)
+        for kind, ep, fn in ins:
+            self._objs.append(session.declare_subscriber(self.layout.sub_key(ep),
+                                                         self._callback(kind, ep, fn)))
+        self._pubs = {name: session.declare_publisher(
+            self.layout.key(ep), congestion_control=zenoh.CongestionControl.DROP,
+            reliability=zenoh.Reliability.RELIABLE) for name, ep in outs.items()}
+        self._endpoints = outs
+        self._seq = dict.fromkeys(outs, 0)
+        self.tokens = self.layout.tokens([ep for _, ep, _ in ins] + list(outs.values()))
+        liveliness = session.liveliness()
+        self._objs += [liveliness.declare_token(t) for t in self.tokens]
+        log.info("ROS 2 (%s): in %s, out %s", self.layout.name,
+                 ", ".join(self.layout.sub_key(ep) for _, ep, _ in ins) or "-",
+                 ", ".join(self.layout.key(ep) for ep in outs.values()) or "-")
+
+    def _callback(self, kind: str, ep: Endpoint,
+                  fn: Callable[..., Any]) -> Callable[[zenoh.Sample], None]:
+        deliver = self._deliver
+        layout = self.layout
+        want = layout.hash(ep) if isinstance(layout, RmwZenoh) else None
+        what = f"{kind} {ep.topic}"
+
+        def callback(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            got = layout.hash_in(str(sample.key_expr))
+            if got is not None and got != want:
+                deliver(kind, functools.partial(decode.wrong_type, what=what, got=got,
+                                                want=want), payload)
+            else:
+                deliver(kind, fn, payload)
+
+        return callback
+
+    # ------------------------------------------------------------ outputs
+    def put(self, name: str, cdr: bytes) -> None:
+        """Publish CDR on output ``name`` (with rmw_zenoh's attachment)."""
+        pub = self._pubs.get(name)
+        if pub is None:
+            return
+        self._seq[name] += 1
+        try:
+            pub.put(cdr, **self.layout.put_options(self._endpoints[name], self._seq[name]))
+        except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
+            log.warning("publishing ROS %s failed: %s", name, exc)
+
+    def publish_status(self, status: dict[str, Any]) -> None:
+        if "status" in self._pubs:
+            self.put("status", status_cdr(status, self.settings))
+
+    def publish_retimed(self, result_json: bytes) -> None:
+        """The service's ``rota/result`` bytes, as a MultiDOFJointTrajectory."""
+        if "retimed" not in self._pubs:
+            return
+        try:
+            cdr = retimed_cdr_from_json(result_json, self.settings)
+        except Exception as exc:  # noqa: BLE001 - a bad result must not stop the service
+            log.warning("ROS re-timed trajectory not published: %s", exc)
+            return
+        self.put("retimed", cdr)
+
+    def close(self) -> None:
+        for obj in [*self._objs, *self._pubs.values()]:
+            try:
+                obj.undeclare()
+            except Exception:  # noqa: BLE001, S110 - closing anyway
+                pass
+        self._objs.clear()
+        self._pubs.clear()

@@ -1,0 +1,358 @@
+"""The setpoint stream: what is commanded at every instant, sent to PX4 at
+``stream.rate_hz`` on absolute deadlines.
+
+The stream owns the commanded source (a :class:`~companion.plan.Plan`, a
+:class:`~companion.plan.Brake` or a :class:`~companion.plan.Hold`), swaps in the
+next plan at its takeover time, and records every setpoint it sends. Nothing
+here decodes, solves or waits on the network: one tick is a few array
+operations and one MAVLink send.
+
+Two promises are kept here, whatever happens elsewhere:
+
+* **No jump.** Every setpoint is checked against the one sent before it (finite,
+  inside the geofence, no farther than the speed limit allows over their spacing,
+  plus the takeover blend); a setpoint that fails is not sent: the stream brakes
+  from the last setpoint it sent instead, and reports why.
+* **No stale stream.** Plans run on the monotonic clock, so after a stall of the
+  loop (or of the whole process) the plan's "now" has run ahead. A stall longer
+  than ``stream.stall_budget_s`` is detected before anything is sent: the stream
+  brakes from the last setpoint it sent and holds, and a new ``start`` is needed
+  to fly trajectories again. A stall that PX4's offboard-loss failsafe may have
+  seen (``offboard_loss_timeout`` x :data:`LOSS_SHARE`) ends the stream
+  altogether: resumed setpoints would take PX4 back into OFFBOARD by themselves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from companion import messages as msgs
+from companion.autopilot import Autopilot
+from companion.config import Config
+from companion.frames import heading_ned_deg
+from companion.plan import (
+    Brake,
+    Command,
+    Hold,
+    Plan,
+    blend_speed,
+    blend_time,
+    brake_along,
+)
+from companion.status import Reporter
+
+log = logging.getLogger("rota.companion")
+
+#: Share of the smallest acceleration limit used to brake to a hold.
+BRAKE_SHARE = 0.7
+#: A stall longer than this share of PX4's offboard-loss timeout ends the stream.
+LOSS_SHARE = 0.8
+#: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
+STEP_SLACK_M = 0.01
+
+Source = Plan | Hold | Brake
+
+
+class SentLog:
+    """The last ``size`` setpoints sent, (monotonic time, ENU position), in a fixed
+    ring: its memory does not grow with the flight."""
+
+    def __init__(self, size: int = 30000) -> None:
+        self.size = size
+        self._t = np.zeros(size)
+        self._p = np.zeros((size, 3))
+        self._n = 0
+
+    def append(self, t: float, p: np.ndarray) -> None:
+        i = self._n % self.size
+        self._t[i], self._p[i] = t, p
+        self._n += 1
+
+    def __len__(self) -> int:
+        return min(self._n, self.size)
+
+    def _last(self, k: int) -> np.ndarray:
+        """Ring indices of the newest ``k`` entries, oldest first."""
+        k = min(k, len(self))
+        return (np.arange(self._n - k, self._n)) % self.size
+
+    def __iter__(self):  # noqa: ANN204 - (time, position) pairs, oldest first
+        idx = self._last(len(self))
+        return zip(self._t[idx].tolist(), self._p[idx].copy(), strict=True)
+
+    def since(self, t0: float, most: int = 512) -> np.ndarray:
+        """Positions sent at ``t0`` or later (of the newest ``most``); the newest one
+        if none."""
+        idx = self._last(most)
+        if not len(idx):
+            return np.zeros((0, 3))
+        keep = idx[self._t[idx] >= t0]
+        return self._p[keep if len(keep) else idx[-1:]]
+
+
+class SetpointStream:
+    """Streams the commanded state to the autopilot while ``streaming``.
+
+    ``on_halt(reason, ended)`` is called (on the event loop) when a stall or a
+    refused setpoint halts the flight: ``ended`` when the stream stopped
+    altogether (PX4's failsafe has the vehicle), else it brakes to a hold.
+    """
+
+    def __init__(self, cfg: Callable[[], Config], autopilot: Autopilot,
+                 report: Reporter) -> None:
+        self._cfg = cfg
+        self.autopilot = autopilot
+        self.report = report
+        self.source: Source | None = None  # what is commanded
+        self.next_plan: Plan | None = None  # takes over at its t0
+        self.streaming = False
+        self.started = 0.0
+        self.yaw_ned = 0.0
+        self.halted: str | None = None  # why plans may not fly until the next start
+        self.on_halt: Callable[[str, bool], None] = lambda reason, ended: None
+        self.send_times: deque[float] = deque(maxlen=3000)
+        self.sent = SentLog()  # (time, position) of the setpoints sent
+        self.last_sent: Command | None = None
+        self.last_send_time = 0.0
+        self.last_tick = 0.0  # monotonic time of the last loop iteration (supervision)
+        self.stalls = 0
+        self.longest_stall_s = 0.0
+        self.record: Callable[..., None] = lambda channel, payload: None  # flight record
+        #: set after every loop iteration (a setpoint sent, or nothing to send): other
+        #: periodic work waits for it and so runs just after a setpoint, in the
+        #: stream's idle time, not across its next deadline
+        self.beat = asyncio.Event()
+
+    # ------------------------------------------------------------ commanding
+    def commanded(self, now: float) -> Command:
+        """The commanded state at ``now`` (the vehicle's position when idle)."""
+        if self.source is None:
+            pos = self.autopilot.telemetry.position
+            return Command(np.zeros(3) if pos is None else pos.copy())
+        return self.source.command(now)
+
+    def begin(self, position: np.ndarray, yaw_ned: float, reason: str) -> None:
+        """Start streaming a hold at ``position``."""
+        self.source, self.next_plan = Hold(position.copy(), reason), None
+        self.yaw_ned = yaw_ned
+        self.halted, self.last_sent = None, None
+        self.streaming, self.started = True, time.monotonic()
+
+    async def stop(self) -> None:
+        """Stop streaming and forget the source."""
+        self.streaming = False
+        self.source, self.next_plan = None, None
+
+    def offer(self, plan: Plan) -> None:
+        """Fly ``plan`` from its ``t0`` on (ignored while halted)."""
+        if self.halted is None:
+            self.next_plan = plan
+
+    def take_over(self, now: float) -> None:
+        """Swap in the next plan at its start time, carrying the position gap (at most
+        the stitch tolerance: a larger one is refused, the current command goes on)."""
+        plan = self.next_plan
+        self.next_plan = None
+        old = self.commanded(now)
+        new = plan.command(now)
+        gap = old.position - new.position
+        size, tolerance = float(np.linalg.norm(gap)), self._cfg().safety.stitch_tolerance_m
+        if size > tolerance:
+            self.report.error("stream", f"trajectory {plan.id!r} not flown: at takeover it "
+                              f"is {size:.2f} m from the command (tolerance {tolerance} m)")
+            return
+        self.source = replace(plan, offset=gap, blend_s=blend_time(size), blend_t0=now)
+
+    def _decel(self) -> float:
+        return BRAKE_SHARE * min(self._cfg().limits.a_max)
+
+    def brake(self, reason: str) -> None:
+        """Stop along the path being flown (or hold) and report why."""
+        now = time.monotonic()
+        self.next_plan = None
+        if isinstance(self.source, Plan):
+            self.source = brake_along(self.source, now, self._decel(), reason)
+        elif isinstance(self.source, Brake):
+            return
+        else:
+            self.source = Hold(self.commanded(now).position, reason)
+        self.report.warn(f"braking to a hold: {reason}")
+
+    def halt(self, reason: str, now: float | None = None) -> None:
+        """Brake from the last setpoint sent (never from where the clock says the plan
+        now is), along the path being flown (the path was checked against the map; a
+        straight line off it was not), and refuse plans until the next ``begin``."""
+        now = time.monotonic() if now is None else now
+        self.next_plan = None
+        self.halted = reason
+        late = now - self.last_send_time
+        if isinstance(self.source, Plan) and self.last_sent is not None:
+            brake = brake_along(self.source, self.last_send_time, self._decel(), reason)
+            self.source = replace(brake, t0=now)
+        elif isinstance(self.source, Brake):  # go on braking from where it was
+            self.source = replace(self.source, t0=self.source.t0 + late, reason=reason)
+        elif self.last_sent is not None:
+            self.source = Hold(self.last_sent.position.copy(), reason)
+        self.report.error("stream", f"{reason}: braking from the last setpoint sent to a "
+                          "hold; a new 'start' is needed")
+        self.on_halt(reason, False)
+
+    def _end(self, reason: str) -> None:
+        self.streaming = False
+        self.source, self.next_plan = None, None
+        self.halted = reason
+        self.report.error("stream", f"{reason}: setpoint stream stopped, PX4's offboard-loss "
+                          "failsafe has the vehicle; a new 'start' is needed")
+        self.on_halt(reason, True)
+
+    # ------------------------------------------------------------ the loop
+    async def run(self, tick: Callable[[], None] = lambda: None) -> None:
+        """Setpoints at ``rate_hz`` on absolute deadlines (no drift), while streaming."""
+        period = 1.0 / self._cfg().stream.rate_hz
+        loop = asyncio.get_running_loop()
+        deadline = loop.time()
+        self.last_tick = time.monotonic()
+        while True:
+            deadline += period
+            delay = deadline - loop.time()
+            if delay < -5 * period:  # fell far behind (stalled): resynchronise
+                deadline = loop.time()
+            await asyncio.sleep(max(delay, 0.0))
+            now = time.monotonic()
+            stall, self.last_tick = now - self.last_tick, now
+            tick()
+            if self.streaming:
+                if stall > self._cfg().stream.stall_budget_s:
+                    self._stalled(stall, now)
+                if self.streaming:
+                    self._step(now)
+            self.beat.set()
+
+    def loss_timeout(self) -> float:
+        """PX4's offboard-loss timeout: the smaller of the configured and PX4's own."""
+        cfg = self._cfg().mavlink.offboard_loss_timeout_s
+        px4 = self.autopilot.offboard_loss_timeout_s
+        return cfg if px4 is None or not px4 > 0 else min(cfg, px4)
+
+    def _stalled(self, stall: float, now: float) -> None:
+        self.stalls += 1
+        self.longest_stall_s = max(self.longest_stall_s, stall)
+        what = f"the service was stalled for {stall:.2f} s"
+        if stall >= LOSS_SHARE * self.loss_timeout():
+            self._end(f"{what} (PX4's offboard-loss timeout is {self.loss_timeout():.2f} s)")
+        elif self.halted is None or not isinstance(self.source, Hold):
+            self.halt(f"{what} (budget {self._cfg().stream.stall_budget_s} s)", now)
+
+    def tracking_error(self, position: np.ndarray, now: float) -> np.ndarray | None:
+        """The reported ``position`` minus the nearest of the setpoints sent in the
+        last ``safety.tracking_lag_s`` (PX4's position loop lags its setpoint by up to
+        half a second at 2-3 m/s: a lag is no divergence). None if none was sent."""
+        recent = self.sent.since(now - self._cfg().safety.tracking_lag_s)
+        if not len(recent):
+            return None
+        d = position - recent
+        return d[int(np.argmin(np.einsum("ij,ij->i", d, d)))]
+
+    def _step(self, now: float) -> None:
+        age = now - self.autopilot.telemetry.position_time
+        if age > LOSS_SHARE * self.loss_timeout():
+            # deaf to the vehicle for nearly PX4's offboard-loss timeout: a link that
+            # comes back must not find setpoints still flowing (PX4 would return to
+            # OFFBOARD on the first one)
+            self._end(f"no telemetry from PX4 for {age:.2f} s")
+            return
+        if self.next_plan is not None and now >= self.next_plan.t0:
+            self.take_over(now)
+        if isinstance(self.source, Plan | Brake) and self.source.finished(now):
+            end = self.source.command(now).position
+            # a finished brake keeps its reason (why the vehicle holds)
+            reason = self.source.reason if isinstance(self.source, Brake) else \
+                "end of trajectory"
+            self.source = Hold(end, reason)
+            self.report.event(f"{reason}: holding at {msgs.vec(end, 2)}")
+        cmd = self.commanded(now)
+        problem = self.check(cmd, now)
+        if problem:
+            self.halt(problem, now)
+            cmd = self.commanded(now)
+            if self.check(cmd, now):  # nothing safe to send: stop, PX4's failsafe acts
+                self._end(f"no safe setpoint after: {problem}")
+                return
+        self._update_yaw(cmd)
+        try:
+            # a setpoint computed before a stall is not sent after it (the next tick
+            # sees the stall)
+            sent = self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
+                                       self.yaw_ned, now, now + self._cfg().stream.stall_budget_s)
+        except Exception as exc:  # noqa: BLE001 - the link monitor reports a dead link
+            log.warning("setpoint send failed: %s", exc)
+            return
+        if sent:
+            self.send_times.append(now)
+            self.sent.append(now, cmd.position)
+            self.last_sent, self.last_send_time = cmd, now
+            self.record("setpoint", {"t": now, "p": cmd.position, "v": cmd.velocity,
+                                     "a": cmd.acceleration, "yaw": self.yaw_ned,
+                                     "source": getattr(self.source, "id", None)
+                                     or type(self.source).__name__.lower()})
+
+    def check(self, cmd: Command, now: float) -> str:
+        """Why ``cmd`` must not be sent after the last setpoint ("" if it may):
+        non-finite, outside the geofence, or a jump from the last one."""
+        if not (np.all(np.isfinite(cmd.position)) and np.all(np.isfinite(cmd.velocity))
+                and np.all(np.isfinite(cmd.acceleration))):
+            return "non-finite setpoint computed"
+        cfg = self._cfg()
+        lo, hi = np.asarray(cfg.safety.geofence_min), np.asarray(cfg.safety.geofence_max)
+        if np.any(cmd.position < lo) or np.any(cmd.position > hi):
+            last = self.last_sent
+            # the fence never traps a vehicle already outside it: only a step outward
+            # from the last setpoint is refused
+            if last is None or np.any((cmd.position < np.minimum(lo, last.position))
+                                      | (cmd.position > np.maximum(hi, last.position))):
+                return (f"setpoint {msgs.vec(cmd.position, 2)} outside the geofence "
+                        f"{list(lo)} to {list(hi)}")
+        if self.last_sent is None:
+            return ""
+        dt = now - self.last_send_time
+        allowed = self.max_speed() * dt + STEP_SLACK_M
+        step = float(np.linalg.norm(cmd.position - self.last_sent.position))
+        if step > allowed:
+            return (f"setpoint jump of {step:.2f} m in {dt * 1e3:.0f} ms refused (at most "
+                    f"{allowed:.2f} m)")
+        return ""
+
+    def max_speed(self) -> float:
+        """The fastest a setpoint may move: v_max plus the largest takeover blend."""
+        cfg = self._cfg()
+        return cfg.limits.v_max + blend_speed(cfg.safety.stitch_tolerance_m)
+
+    def _update_yaw(self, cmd: Command) -> None:
+        if self._cfg().stream.yaw == "path" and np.linalg.norm(cmd.velocity[:2]) > 0.3:
+            self.yaw_ned = heading_ned_deg(cmd.velocity)
+
+    def vehicle_yaw(self) -> float:
+        """The vehicle's heading now (NED yaw, deg): the yaw to hold at first."""
+        yaw = self.autopilot.telemetry.yaw_ned_deg
+        return self.yaw_ned if yaw is None or not math.isfinite(yaw) else yaw
+
+    # ------------------------------------------------------------ figures
+    def jitter_p99_ms(self) -> float | None:
+        """99th percentile of |period - nominal| of the setpoint stream (ms)."""
+        t = np.asarray(self.send_times)
+        if len(t) < 20:
+            return None
+        dt = np.diff(t)
+        dt = dt[dt < 0.5]  # gaps between streaming sessions are not jitter
+        if not len(dt):
+            return None
+        return round(float(np.percentile(np.abs(dt - 1.0 / self._cfg().stream.rate_hz), 99))
+                     * 1e3, 3)

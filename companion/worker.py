@@ -1,0 +1,150 @@
+"""A supervised worker process: CPU-heavy work (decoding network input,
+re-timing) runs here, never on the event loop or in a thread of the service's
+process (the work holds the GIL; a thread would stall the setpoint stream).
+
+:meth:`Worker.call` runs a function in the process with a timeout; a runaway
+call or a death of the process restarts it, and the caller learns which of the
+two happened. :meth:`Worker.dead` tells whether an idle process died, so the
+supervisor can report and respawn it within a second.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import multiprocessing
+import os
+import signal
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+#: CPU priority of worker processes: the setpoint stream is time-critical, they are not.
+WORKER_NICE = 10
+
+
+class WorkerDied(RuntimeError):
+    """The worker process died during a call; the message says how and when."""
+
+
+def _init(nice: int) -> None:
+    os.nice(nice)
+    # Ctrl-C in a terminal goes to the whole process group: the service decides
+    # when its workers stop, a KeyboardInterrupt traceback in one helps nobody
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def describe_exit(code: int | None) -> str:
+    """A process exit code in words (negative: killed by a signal)."""
+    if code is None:
+        return "still running"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class Worker:
+    """One worker process (``workers`` > 1: a small pool), spawned on first use.
+
+    ``on_spawn(pool)`` runs after every (re)spawn, e.g. to hand a new process the
+    state the old one had.
+    """
+
+    def __init__(self, name: str, workers: int = 1,
+                 on_spawn: Callable[[ProcessPoolExecutor], None] = lambda pool: None) -> None:
+        self.name = name
+        self.workers = workers
+        self._on_spawn = on_spawn
+        self._pool: ProcessPoolExecutor | None = None
+        self._procs: list[Any] = []  # the current pool's processes, as last seen
+        self.restarts = 0
+        self.deaths: list[str] = []  # deaths seen by calls, not yet reported
+
+    def pool(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            # spawn, not fork: the parent runs Zenoh and MAVSDK threads
+            self._pool = ProcessPoolExecutor(max_workers=self.workers,
+                                             mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_init, initargs=(WORKER_NICE,))
+            self._on_spawn(self._pool)
+        return self._pool
+
+    def _processes(self, pool: ProcessPoolExecutor) -> list[Any]:
+        """The pool's processes (the executor forgets them once it breaks)."""
+        procs = list(pool._processes.values())
+        if pool is self._pool and procs:
+            self._procs = procs
+        return procs or (self._procs if pool is self._pool else [])
+
+    def pids(self) -> list[int]:
+        pool = self._pool
+        return [] if pool is None else [p.pid for p in self._processes(pool)]
+
+    async def call(self, timeout_s: float, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` in the worker. Raises TimeoutError after ``timeout_s`` and
+        WorkerDied if the process dies; either way the process is restarted."""
+        loop = asyncio.get_running_loop()
+        start = time.monotonic()
+        pool = self.pool()
+        future = loop.run_in_executor(pool, fn, *args)
+        procs = self._processes(pool)
+        try:
+            # (asyncio.timeout, not wait_for: in Python 3.11 wait_for can swallow a
+            # cancellation that comes as the result arrives, and the task that
+            # called it then outlives the supervisor's close)
+            async with asyncio.timeout(timeout_s):
+                return await future
+        except TimeoutError:
+            if self._pool is pool:  # (the supervisor may have restarted it already)
+                self.restart()
+            raise TimeoutError(f"{self.name} did not finish within {timeout_s:.2f} s; "
+                               "worker restarted") from None
+        except BrokenProcessPool:
+            for _ in range(10):  # the exit status shows a moment after the pipes close
+                cause = next((describe_exit(p.exitcode) for p in procs
+                              if p.exitcode is not None), "died")
+                if cause != "died":
+                    break
+                await asyncio.sleep(0.02)
+            if self._pool is pool:
+                self.deaths.append(f"{cause} during a call")
+                self.restart()
+            raise WorkerDied(f"{self.name} worker {cause} after "
+                             f"{time.monotonic() - start:.2f} s; restarted") from None
+
+    def dead(self, pool: ProcessPoolExecutor | None = None) -> str | None:
+        """How the worker process died (None while it lives or was not started)."""
+        pool = pool or self._pool
+        if pool is None:
+            return None
+        for proc in self._processes(pool):
+            if proc.exitcode is not None:
+                return describe_exit(proc.exitcode)
+        return None  # (a broken pool whose process shows no exit status yet: next look)
+
+    def restart(self) -> None:
+        """Kill the process(es); the next call spawns fresh ones."""
+        pool = self._pool
+        if pool is None:
+            return
+        procs = self._processes(pool)
+        self._pool, self._procs = None, []
+        self.restarts += 1
+        for proc in procs:
+            if proc.exitcode is None:
+                proc.kill()
+        pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            for proc in list(pool._processes.values()):
+                if proc.exitcode is None:
+                    proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)

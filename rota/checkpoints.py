@@ -1,0 +1,131 @@
+"""Where the limits are imposed: the grid nodes and check points inside every
+interval and every input piece (paper Eqs. 23 and 26 between the nodes).
+
+Beta is linear in tau inside an interval, alpha constant, so at fraction ``f``
+of interval ``i`` the limits are linear in ``(beta_i, beta_{i+1})``. Check points:
+
+* both ends of every interval (alpha jumps at the nodes);
+* a uniform subdivision of every interval into at least :data:`MIN_PARTS` parts,
+  at most :data:`SPACING` of trajectory time apart;
+* the path's own breakpoints (B-spline knots, segment ends, sample times: the
+  acceleration may peak there);
+* inside every input piece at least :data:`PIECE_PARTS` parts, so that a short,
+  stiff piece (two samples 1 ms apart) is checked inside too.
+
+After a solve, :func:`rota.retime.audit` looks between the check points (the midpoint of
+every gap); a limit broken there adds those points and the re-timer solves
+again (constraint generation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rota.jit import kernels
+from rota.path import evaluate
+from rota.trajectory import Trajectory
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Below this |sigma'| (m per second of trajectory time) the path is standing still.
+STILL = 1e-6
+#: beta may exceed the median speed-limited beta by at most this factor (tau_dot x 100).
+BETA_CAP_FACTOR = 1e4
+#: Check points per interval: at least this many parts ...
+MIN_PARTS = 4
+#: ... and at most this far apart (s of trajectory time).
+SPACING = 0.025
+#: Every input piece is cut in at least this many parts by check points.
+PIECE_PARTS = 8
+
+
+@dataclass(frozen=True)
+class PathSamples:
+    """The path and its limits on the grid and at the check points.
+
+    Check points are grouped by interval: those of interval ``i`` are
+    ``offsets[i]`` to ``offsets[i + 1] - 1``, sorted by their fraction ``frac``
+    of the interval (0 and 1 are its ends).
+    """
+
+    tau: FloatArray  # (N+1,)
+    d1: FloatArray  # (N+1, 3) sigma' at the nodes
+    d2: FloatArray  # (N+1, 3) sigma'' at the nodes
+    beta_max: FloatArray  # (N+1,) bound on beta from the node speed limits and the cap
+    vlim: FloatArray  # (N+1,) speed limit per node (m/s)
+    a_max: FloatArray  # (3,)
+    offsets: IntArray  # (N+1,)
+    frac: FloatArray  # (M,)
+    cd1: FloatArray  # (M, 3) sigma' at the check points
+    cd2: FloatArray  # (M, 3) sigma'' there
+    moving: bool = True  # some node or check point has |sigma'| above STILL
+
+    @property
+    def n_intervals(self) -> int:
+        return len(self.tau) - 1
+
+    @property
+    def h(self) -> float:
+        return float(self.tau[1] - self.tau[0])
+
+    @property
+    def interval(self) -> IntArray:
+        """Interval of every check point."""
+        return np.repeat(np.arange(self.n_intervals), np.diff(self.offsets))
+
+    @property
+    def point_tau(self) -> FloatArray:
+        """Trajectory time of every check point."""
+        i = self.interval
+        return self.tau[i] + self.frac * self.h
+
+    def with_points(self, trajectory: Trajectory, interval: IntArray,
+                    frac: FloatArray) -> PathSamples:
+        """The same path with more check points."""
+        return _assemble(trajectory, self, np.concatenate([self.interval, interval]),
+                         np.concatenate([self.frac, frac]))
+
+
+def _assemble(trajectory: Trajectory, base: PathSamples, interval: IntArray,
+              frac: FloatArray) -> PathSamples:
+    """Sort the check points by interval and fraction, evaluate the path there."""
+    key = interval * 2.0 + frac
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    keep = np.concatenate([[True], np.diff(key) > 1e-12])
+    interval, frac = interval[order][keep], frac[order][keep]
+    n = base.n_intervals
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(interval, minlength=n), out=offsets[1:])
+    _, c1, c2 = evaluate(trajectory, base.tau[interval] + frac * base.h)
+    return replace(base, offsets=offsets, frac=frac, cd1=c1, cd2=c2)
+
+
+def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
+                a_max: FloatArray, d1: FloatArray | None = None,
+                d2: FloatArray | None = None) -> PathSamples:
+    """Evaluate the path on the grid and at the check points (``d1``, ``d2``: the
+    path's derivatives on the grid, when the caller has them).
+
+    ``beta_max`` is the speed bound ``v_i^2 / |sigma'_i|^2`` (Eq. 23); where the path
+    stands still (``|sigma'| = 0``, e.g. a B-spline's clamped end) beta is capped at
+    :data:`BETA_CAP_FACTOR` times the median speed bound, so the problem stays
+    bounded and well scaled.
+    """
+    if d1 is None or d2 is None:
+        _, d1, d2 = evaluate(trajectory, tau)
+    h = float(tau[1] - tau[0])
+    parts = max(MIN_PARTS, int(np.ceil(h / SPACING - 1e-9)))
+    vlim = np.ascontiguousarray(vlim, dtype=float)
+    breaks, coefs = trajectory.pieces
+    t0, t1 = trajectory.domain
+    offsets, frac, c1, c2, beta_max, moving = kernels().sample(
+        breaks, coefs, float(t0), float(t1), tau, parts, PIECE_PARTS, d1, vlim, STILL,
+        BETA_CAP_FACTOR)
+    return PathSamples(tau=tau, d1=d1, d2=d2, beta_max=beta_max, vlim=vlim,
+                       a_max=np.ascontiguousarray(a_max, dtype=float), offsets=offsets,
+                       frac=frac, cd1=c1, cd2=c2, moving=bool(moving))

@@ -1,0 +1,20 @@
+"""numba-compiled kernels of the re-timer; load them through :func:`rota.jit.kernels`
+(which chooses the on-disk cache first), not by importing this package directly."""
+
+from rota.kernels.chain import build_rows
+from rota.kernels.chance import assess_nodes, braking_points, chance_limits, memory_caps
+from rota.kernels.ipm import ipm_solve
+from rota.kernels.nearest import bricks_build, bricks_query
+from rota.kernels.path import (
+    audit,
+    bspline_pieces,
+    eval_pieces,
+    piece_edges,
+    sample,
+    time_map,
+)
+from rota.kernels.reach import forward_reachable, passes
+
+__all__ = ["assess_nodes", "audit", "braking_points", "bricks_build", "bricks_query",
+           "bspline_pieces", "build_rows", "chance_limits", "eval_pieces", "forward_reachable",
+           "ipm_solve", "memory_caps", "passes", "piece_edges", "sample", "time_map"]

@@ -1,0 +1,129 @@
+"""What the vehicle received, checked: the offboard setpoints a
+:class:`~sitl.process.SimProcess` recorded (:attr:`SimReport.setpoints`),
+measured for rate, gaps, jumps, limits and the geofence.
+
+Gaps are measured twice: between the send stamps the setpoints carry
+(``time_boot_ms``, the sender's clock: what the service achieved, and a setpoint
+lost on the way shows as a gap too) and between their arrival times at the
+vehicle (which add the simulator's own scheduling delays). Jumps use the send
+stamps, so two setpoints that arrive together are not mistaken for a jump, and
+a gap never excuses a leap: the step after a gap may be at most what the
+allowed speed covers in :data:`MAX_STEP_DT` (a stream that stalled and resumed
+where the wall clock says the plan now is would jump).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Stamps carry whole milliseconds.
+STAMP_RESOLUTION_S = 1e-3
+#: The longest spacing that may excuse a step between two setpoints (s).
+MAX_STEP_DT = 0.1
+
+
+@dataclass(frozen=True)
+class StreamFigures:
+    """Figures of a setpoint stream as the vehicle received it."""
+
+    count: int
+    duration_s: float
+    max_gap_s: float  # between send stamps
+    p99_gap_s: float
+    max_arrival_gap_s: float  # between arrivals at the vehicle
+    p99_arrival_gap_s: float
+    max_speed: float  # largest step between consecutive setpoints over their spacing, m/s
+    jumps: int  # steps over ``allowed_speed`` x spacing
+    largest_jump_m: float
+    outside_fence: int
+    non_finite: int
+
+    def problems(self, max_gap_s: float = 0.1, p99_gap_s: float = 0.025) -> list[str]:
+        """What breaks the stream's promises (empty: none)."""
+        out = []
+        if self.count < 2:
+            out.append(f"only {self.count} setpoints")
+        eps = STAMP_RESOLUTION_S / 2  # stamps are whole milliseconds
+        if self.max_gap_s > max_gap_s + eps:
+            out.append(f"gap of {self.max_gap_s * 1e3:.0f} ms > {max_gap_s * 1e3:.0f} ms")
+        if self.p99_gap_s > p99_gap_s + eps:
+            out.append(f"p99 gap {self.p99_gap_s * 1e3:.1f} ms > {p99_gap_s * 1e3:.0f} ms")
+        if self.jumps:
+            out.append(f"{self.jumps} jumps (largest {self.largest_jump_m:.2f} m)")
+        if self.outside_fence:
+            out.append(f"{self.outside_fence} setpoints outside the geofence")
+        if self.non_finite:
+            out.append(f"{self.non_finite} non-finite setpoints")
+        return out
+
+    def summary(self) -> str:
+        return (f"{self.count} setpoints in {self.duration_s:.1f} s; gap max "
+                f"{self.max_gap_s * 1e3:.1f} ms, p99 {self.p99_gap_s * 1e3:.1f} ms (arrival: max "
+                f"{self.max_arrival_gap_s * 1e3:.1f}, p99 {self.p99_arrival_gap_s * 1e3:.1f} ms); "
+                f"fastest step {self.max_speed:.2f} m/s, {self.jumps} jumps, "
+                f"{self.outside_fence} outside the fence, {self.non_finite} non-finite")
+
+
+def _gaps(t: np.ndarray, pauses: Sequence[tuple[float, float]], wall: np.ndarray) -> np.ndarray:
+    """Gaps of ``t``, leaving out those that span a pause (wall-clock intervals in
+    which the sender was stopped on purpose)."""
+    dt = np.diff(t)
+    keep = np.ones(len(dt), dtype=bool)
+    for a, b in pauses:
+        keep &= ~((wall[:-1] <= b) & (wall[1:] >= a))
+    return dt[keep]
+
+
+def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
+                 fence: tuple[Sequence[float], Sequence[float]] | None = None,
+                 origin: Sequence[float] = (0.0, 0.0, 0.0),
+                 window: tuple[float, float] | None = None,
+                 pauses: Sequence[tuple[float, float]] = ()) -> StreamFigures:
+    """Check the setpoints received within ``window`` (host monotonic seconds).
+
+    Args:
+        setpoints: as :attr:`sitl.process.SimReport.setpoints` (world ENU).
+        allowed_speed: no setpoint may move faster than this from the one before (m/s).
+        fence: ``(min, max)`` ENU corners relative to ``origin`` (the vehicle's home).
+        pauses: wall-clock intervals to leave out of the gaps (the sender was stopped).
+    """
+    wall = np.asarray(setpoints["wall_time"], dtype=float)
+    keep = np.ones(len(wall), dtype=bool)
+    if window is not None:
+        keep = (wall >= window[0]) & (wall <= window[1])
+    wall = wall[keep]
+    sent = np.asarray(setpoints["sent_s"], dtype=float)[keep]
+    p = np.asarray(setpoints["position"], dtype=float)[keep] - np.asarray(origin)
+    v = np.asarray(setpoints["velocity"], dtype=float)[keep]
+    a = np.asarray(setpoints["acceleration"], dtype=float)[keep]
+    finite = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(v), axis=1) & \
+        np.all(np.isfinite(a), axis=1)
+    n = len(wall)
+    if n < 2:
+        return StreamFigures(n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0, int(n - finite.sum()))
+    gaps = _gaps(sent, pauses, wall)
+    arrivals = _gaps(wall, pauses, wall)
+    dt = np.clip(np.diff(sent), 0.0, MAX_STEP_DT) + STAMP_RESOLUTION_S
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    speed = np.where(np.isfinite(step), step / dt, np.inf)
+    over = step > allowed_speed * dt + 0.01
+    outside = 0
+    if fence is not None:
+        lo, hi = np.asarray(fence[0]), np.asarray(fence[1])
+        outside = int(np.count_nonzero(finite & np.any((p < lo - 1e-6) | (p > hi + 1e-6),
+                                                       axis=1)))
+
+    def pct(x: np.ndarray) -> float:
+        return float(np.percentile(x, 99)) if len(x) else 0.0
+
+    return StreamFigures(
+        count=n, duration_s=float(wall[-1] - wall[0]),
+        max_gap_s=float(gaps.max()) if len(gaps) else 0.0, p99_gap_s=pct(gaps),
+        max_arrival_gap_s=float(arrivals.max()) if len(arrivals) else 0.0,
+        p99_arrival_gap_s=pct(arrivals),
+        max_speed=float(np.nanmax(speed)), jumps=int(np.count_nonzero(over)),
+        largest_jump_m=float(np.nanmax(np.where(over, step, 0.0))),
+        outside_fence=outside, non_finite=int(n - finite.sum()))

@@ -1,0 +1,192 @@
+"""The fast solver (compiled interior-point method on beta, with reachability)
+against Clarabel on the same chain problems: random paths of all three input
+kinds, random limits, lambda and start states. Same feasibility verdict, and
+objectives within 1e-6 (Clarabel at 1e-9)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from rota import Limits, RetimeInput, retime
+from rota.chain import Boundary, build, reach
+from rota.checkpoints import sample_path
+from rota.path import evaluate
+from rota.problem import SolverSettings, make_grid
+from rota.solver import solve, solve_clarabel, solve_fast
+from tests.strategies import bspline, limits, sampled, trajectories
+
+REFERENCE = SolverSettings(method="clarabel", tol=1e-9, max_iter=500)
+TIGHT = SolverSettings(method="clarabel", tol=1e-11, max_iter=2000)
+
+
+def chain_problem(traj, lim: Limits, lam: float, n: int, start_share: float = 0.0):
+    """The chain problem of a re-time, starting at ``start_share`` of the speed
+    limit along the path (0: at rest)."""
+    inp = RetimeInput(trajectory=traj, limits=lim, smoothness=lam, dtau=traj.duration / n)
+    tau = make_grid(traj, inp.dtau)
+    _, d1, _ = evaluate(traj, tau)
+    path = sample_path(traj, tau, np.full(len(tau), lim.v_max), lim.a_max_vec)
+    s = float(np.linalg.norm(d1[0]))
+    beta0 = (start_share * lim.v_max / s) ** 2 if s > 1e-6 else None
+    return build(path, lam, Boundary(beta_start=beta0, beta_end=0.0 if np.linalg.norm(
+        d1[-1]) > 1e-6 else None))
+
+
+def agree(problem) -> None:
+    rch = reach(problem)
+    ref, ref_stats = solve_clarabel(problem, REFERENCE)
+    if not rch.feasible:
+        assert ref is None and "Infeasible" in ref_stats.status, ref_stats.status
+        return
+    assert ref is not None, ref_stats.status
+    beta, stats = solve_fast(problem, SolverSettings(), start=rch.greedy)
+    assert beta is not None, stats
+    ours, theirs = problem.objective(beta), problem.objective(ref)
+    if ours < theirs * (1 - 1e-6):
+        # At lambda = 0 (an LP-like, degenerate optimum) Clarabel at 1e-9 can stop
+        # short: then a tighter solve must come to our objective.
+        ref, ref_stats = solve_clarabel(problem, TIGHT)
+        assert ref is not None, ref_stats.status
+        theirs = problem.objective(ref)
+    assert abs(ours - theirs) <= 1e-6 * theirs, (ours, theirs, stats)
+    # and the fast answer is feasible: every row and bound within rounding
+    rows = problem.ra * beta[problem.rk] + problem.rc * beta[problem.rk + 1]
+    assert rows.max(initial=0.0) <= 1 + 1e-7
+    assert np.all(beta <= problem.hi * (1 + 1e-7)) and np.all(beta >= 0)
+
+
+@settings(deadline=None, max_examples=60, suppress_health_check=[HealthCheck.too_slow])
+@given(traj=trajectories(), lim=limits(), n=st.integers(8, 300),
+       lam=st.sampled_from([0.0, 1e-3, 0.5, 2.0]))
+def test_fast_solver_matches_clarabel_at_rest(traj, lim, n, lam):
+    agree(chain_problem(traj, lim, lam, n))
+
+
+@settings(deadline=None, max_examples=40, suppress_health_check=[HealthCheck.too_slow])
+@given(traj=trajectories(), lim=limits(), n=st.integers(8, 200),
+       lam=st.sampled_from([0.0, 0.5]), share=st.floats(0.0, 1.0))
+def test_fast_solver_matches_clarabel_moving_start(traj, lim, n, lam, share):
+    """Moving starts include infeasible ones (too fast to stop on a short path)."""
+    agree(chain_problem(traj, lim, lam, n, share))
+
+
+def test_infeasible_verdicts_agree():
+    traj = sampled(5, 5, 0.4, with_velocity=False)  # moving at both ends
+    lim = Limits(4.0, 0.3)
+    problem = chain_problem(traj, lim, 0.5, 60, start_share=1.0)
+    assert not reach(problem).feasible
+    agree(problem)
+
+
+def test_solver_choice_and_handover():
+    traj = bspline(2, 6, 1.0)
+    problem = chain_problem(traj, Limits(2.0, 2.0), 0.5, 80)
+    rch = reach(problem)
+    fast, f_stats = solve(problem, SolverSettings(), start=rch.greedy)
+    ref, r_stats = solve(problem, SolverSettings(method="clarabel"))
+    assert f_stats.method == "fast" and r_stats.method == "clarabel"
+    assert abs(problem.objective(fast) - problem.objective(ref)) <= 1e-5 * problem.objective(ref)
+    # one iteration is not enough: the fast solver reports it and Clarabel answers
+    beta, stats = solve(problem, SolverSettings(max_iter=1), start=rch.greedy)
+    assert stats.method == "clarabel" and "fast solver: MaxIterations" in stats.note
+
+
+def test_warm_up_and_cache_directory(tmp_path, monkeypatch):
+    import rota
+    from rota import jit
+
+    monkeypatch.setenv("ROTA_CACHE_DIR", str(tmp_path / "env"))
+    assert jit.resolve_cache_dir(tmp_path / "given") == tmp_path / "given"
+    assert jit.resolve_cache_dir() == tmp_path / "env"
+    monkeypatch.delenv("ROTA_CACHE_DIR")
+    monkeypatch.setenv("CACHE_DIRECTORY", str(tmp_path / "systemd"))
+    assert jit.resolve_cache_dir() == tmp_path / "systemd"
+    seconds = rota.warm_up()
+    assert seconds > 0 and jit.kernels() is jit.kernels()
+
+
+def test_warm_up_compiles_what_the_flight_service_runs():
+    """After warm_up, re-timing as the service does (a forest B-spline with its map, error
+    memory, per-axis acceleration limits, an estimator's model) compiles
+    nothing more: every kernel signature it needs was made before READY. (Found missing:
+    the error-memory kernel, which made a first replan take 0.4 s and a re-time at
+    takeover miss its 2 s budget on a cold cache.)"""
+    import rota
+    from rota import jit
+    from rota.chance import UncertaintyModel
+    from rota.robust import Safety
+    from rota.voxelmap import VoxelMap
+    from sitl.planner import plan
+    from sitl.world import get_world
+
+    rota.warm_up()
+    k = jit.kernels()
+
+    def compiled() -> dict[str, int]:
+        return {name: len(getattr(k, name).signatures) for name in k.__all__}
+
+    before = compiled()
+    world = get_world("forest", seed=5)
+    vmap = VoxelMap.from_points(world.voxel_points(0.1), 0.1)
+    traj = plan(world, 2.0, 2.0, clearance=0.6)
+    for model in (UncertaintyModel(m=0.27, b=0.06, memory_s=1.0),
+                  UncertaintyModel(memory_s=1.5, per_axis=True), UncertaintyModel()):
+        r = retime(RetimeInput(trajectory=traj, limits=Limits(2.0, (2.0, 2.0, 1.5)), dtau=0.05,
+                               safety=Safety(map=vmap, uncertainty=model)))
+        assert r.ok, r.message
+    assert compiled() == before
+
+
+def test_greedy_profile_stays_feasible_on_a_long_deceleration():
+    """Regression: on the bundled 30 m path at dtau 0.01 s (limits at the nodes) the
+    greedy profile met the top of a controllable set, rounding put the next lower
+    bound just above the next set, and the profile left the sets: 1e-10 grew node by
+    node along the final deceleration, and a row with c = -2e-13 at the end made it
+    break a row 33,000-fold. It must meet every row and never beat the optimum."""
+    from rota.bench import load_data, run_rota_nodes
+
+    traj = load_data()[0]["30m"]
+    tau = make_grid(traj, 0.01)
+    _, (problem, greedy) = run_rota_nodes(traj, tau, exact=False)
+    _, (_, best) = run_rota_nodes(traj, tau, exact=True)
+    rows = problem.ra * greedy[problem.rk] + problem.rc * greedy[problem.rk + 1]
+    assert rows.max() <= 1 + 1e-7
+    assert np.all(greedy <= problem.hi * (1 + 1e-7)) and np.all(greedy >= 0)
+    assert problem.objective(greedy) >= problem.objective(best) * (1 - 1e-9)
+    certified = reach(problem, certify=True)
+    assert not certified.exact or np.allclose(certified.greedy, greedy)
+
+
+def test_greedy_profile_meets_the_rows_where_the_path_nearly_stops():
+    """Regression: on the bundled paths at dtau 0.001 s (limits at the nodes) the
+    speed bound of the last nodes is 1e15-4e24 (the path's derivative vanishes at
+    the end); clipping a polygon interpolated from that far corner and rounded the
+    controllable set to its ulp (12932.0 for 12931.89), and the greedy profile broke
+    the last deceleration row by 8.7e-6 (7 m) and 1.2e-7 (30 m)."""
+    from rota.bench import load_data, run_rota_nodes
+
+    for name in ("7m", "30m"):
+        traj = load_data()[0][name]
+        _, (problem, greedy) = run_rota_nodes(traj, make_grid(traj, 0.001), exact=False)
+        assert problem.hi.max() > 1e14  # the case: a far bound
+        rows = problem.ra * greedy[problem.rk] + problem.rc * greedy[problem.rk + 1]
+        assert rows.max() <= 1 + 1e-10, name
+
+
+def test_fast_solver_converges_where_the_gap_outran_the_dual_residual():
+    """Regression: at lambda = 0 on the smallest grid and limits (n = 8, v_max 0.5,
+    a_max 1) the duality gap fell to rounding level while one dual residual stayed
+    near 1e-7; the Newton solve could no longer reduce it and the solver stopped
+    with NumericalError (after 162 and 171 steps). Both paths are solved, in few
+    steps, to Clarabel's objective."""
+    for seed, n_points, span in ((338294138, 8, 0.8494841387933806),
+                                 (2078732403, 8, 1.9024161472914347)):
+        problem = chain_problem(bspline(seed, n_points, span), Limits(0.5, (1.0, 1.0, 1.0)),
+                                0.0, 8)
+        rch = reach(problem)
+        assert rch.feasible
+        beta, stats = solve_fast(problem, SolverSettings(), start=rch.greedy)
+        assert beta is not None and stats.iterations <= 40, stats
+        agree(problem)
