@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.demo import take_off
+from companion.demo import start_holding, take_off
 from companion.proving import Flight
 from rota.bench import load_data
 from rota.schema import TrajectoryMessage, trajectory_to_dict
@@ -40,9 +40,7 @@ async def _scenario(f: Flight, seconds: float) -> dict[str, Any]:
     traj = trajs["30m"]
     gs = f.gs
     await take_off(gs)
-    assert (await gs.command("start"))["ok"]
-    await gs.wait_for(lambda s: gs.telemetry.get("position"), 10, "telemetry")
-    here = np.asarray(gs.telemetry["position"])
+    here = await start_holding(gs)
     shift = here - traj.position(traj.domain[0])[0]
     local = BSplineTrajectory(control_points=traj.control_points + shift,
                               degree=traj.degree, knot_span=traj.knot_span)

@@ -119,9 +119,19 @@ async def hovering(gs: GroundStation, speed: float = 0.5, timeout_s: float = 20.
     raise TimeoutError(f"the vehicle did not settle under {speed} m/s within {timeout_s} s")
 
 
-def held_position(gs: GroundStation, home: np.ndarray) -> np.ndarray:
-    """Where the vehicle is (its telemetry), in world coordinates."""
-    return np.asarray(gs.telemetry["position"], dtype=float) + home
+async def start_holding(gs: GroundStation, timeout_s: float = 10.0) -> np.ndarray:
+    """Start offboard with nothing to fly yet: the service holds where the vehicle
+    is. Returns the position it commands (local ENU), where a planner starts the
+    first trajectory: a plan from a position read before the start (and perhaps
+    stale) may begin farther from the hold than the service lets a plan join."""
+    await gs.command_confirmed("start")
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        tel = gs.telemetry
+        if tel.get("state") == "offboard" and tel.get("setpoint"):
+            return np.asarray(tel["setpoint"]["position"], dtype=float)
+        await asyncio.sleep(0.02)
+    raise TimeoutError(f"no setpoint in telemetry within {timeout_s:g} s of the start")
 
 
 def to_local(traj: BSplineTrajectory, home: np.ndarray) -> BSplineTrajectory:
@@ -170,11 +180,10 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
                       a_max: float, replans: int, timeout_s: float = 120.0) -> dict[str, Any]:
     """Take off, fly the planner's trajectory with ``replans`` replans on the way."""
     await take_off(gs, world, home)
-    here = held_position(gs, home)
+    here = await start_holding(gs) + home
     goal = np.array([world.goal[0], world.goal[1], here[2]])
     first = await plan_async(world, v_max=speed, a_max=a_max, start=here, goal=goal)
     gs.publish("trajectory", trajectory_message(to_local(first, home), "plan-0"))
-    await gs.command_confirmed("start")
     await gs.wait_for(lambda s: s.get("command") == "plan", 10, "the plan to begin")
     t_start = time.monotonic()
     planned = [first.duration]

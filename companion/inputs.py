@@ -5,7 +5,8 @@ Zenoh calls back on its own threads. There, each input gets only constant-time
 checks: its byte size against the configured cap and a rate limit; what fails
 is dropped (a put) or refused at once (a query), and counted. What passes is
 handed to the event loop as bytes, and from there to the decoder's worker
-process; nothing is decoded on the loop. Puts are decoded one at a time per
+process; nothing is decoded on the loop, and replies leave from the service's
+sending thread (:mod:`companion.outbox`). Puts are decoded one at a time per
 kind, in arrival order; only the newest few of each kind wait (:data:`BACKLOG`),
 so a flood supersedes itself. Every query gets a reply, whatever happens to it.
 """
@@ -27,6 +28,7 @@ import zenoh
 from companion import messages as msgs
 from companion.config import Config
 from companion.decoder import DecodeFn, Decoder
+from companion.outbox import Send, send_now
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -79,8 +81,9 @@ class Inputs:
 
     def __init__(self, session: zenoh.Session, cfg: Callable[[], Config],
                  loop: asyncio.AbstractEventLoop, handlers: Handlers, decoder: Decoder,
-                 report: Reporter) -> None:
+                 report: Reporter, send: Send = send_now) -> None:
         self._cfg = cfg
+        self._send = send
         self._loop = loop
         self._h = handlers
         self._decoder = decoder
@@ -230,7 +233,8 @@ class Inputs:
                 if body is None:  # cancelled (shutdown): still answer
                     body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
                                                     message="service stopping")).encode()
-                reply(query, self._reply_key(what, name), body)
+                # (a reply may wait for room on the asker's link: never on the loop)
+                self._send(reply, query, self._reply_key(what, name), body)
 
         task = asyncio.ensure_future(answer())
         self._background.add(task)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from companion.config import Config, to_toml
-from companion.demo import demo_config, free_tcp_port, map_message
+from companion.demo import demo_config, free_tcp_port, map_message, start_holding
 from companion.gs import GroundStation
 from companion.plan import blend_speed
 from sitl.mavsdk_util import free_udp_port
@@ -179,12 +179,10 @@ class Flight:
     async def circle(self, ident: str = "circle-0", duration_s: float = 60.0) -> None:
         """Start offboard and fly the proving circle from where the vehicle holds."""
         gs = self.gs
-        await gs.wait_for(lambda s: gs.telemetry.get("position"), 10, "telemetry")
-        here = np.asarray(gs.telemetry["position"])
+        here = await start_holding(gs)
         self.center = here + [CIRCLE_RADIUS_M, 0.0, 0.0]
         gs.publish("trajectory", circle_message(self.center, CIRCLE_RADIUS_M, math.pi,
                                                 self.speed, duration_s, ident))
-        await self.command("start")
         await gs.wait_for(lambda s: s.get("trajectory_id") == ident, 20, "the circle to begin")
 
     def replan(self, ident: str, duration_s: float = 20.0) -> None:
@@ -207,7 +205,7 @@ class Flight:
         sp = setpoints if setpoints is not None else self.sim.setpoints()
         fence = (self.cfg.safety.geofence_min, self.cfg.safety.geofence_max)
         return check_stream(sp, self.allowed_speed, fence, self.sim.home_enu, window,
-                            self.pauses)
+                            self.pauses, self.sim.steal_monitor.samples())
 
 
 def statuses_errors(statuses: Any) -> list[str]:

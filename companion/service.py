@@ -40,6 +40,7 @@ from companion.decoder import DecodeFn, Decoder
 from companion.estimator import UncertaintyEstimator
 from companion.inputs import Handlers, Inputs
 from companion.learning import Learning
+from companion.outbox import Outbox
 from companion.plan import Brake, Hold, Plan
 from companion.reconfigure import Reconfigure
 from companion.record import recorder_for
@@ -100,6 +101,7 @@ class Service:
         self.notifier = Notifier(self.supervisor.all_alive)
         self.map: VoxelMap | None = None
         self.session: zenoh.Session | None = None
+        self.outbox: Outbox | None = None
         self.publisher: Publisher | None = None
         self.inputs: Inputs | None = None
         self.ros2: Ros2Link | None = None
@@ -188,6 +190,8 @@ class Service:
         self.retimer.close()
         self.decoder.close()
         self.learning.save()
+        if self.outbox is not None:  # what is queued goes out before the undeclaring
+            self.outbox.close()
         if self.inputs is not None:
             self.inputs.close()
         if self.ros2 is not None:
@@ -232,6 +236,7 @@ class Service:
     # =================================================================== zenoh
     def _open_zenoh(self, z: zenoh.Config) -> None:
         self.session = s = zenoh.open(z)
+        self.outbox = Outbox()
         k = self.cfg.key
         json_enc = zenoh.Encoding.APPLICATION_JSON
         pubs = {name: s.declare_publisher(k(name), encoding=json_enc)
@@ -240,13 +245,14 @@ class Service:
         self._alive = s.liveliness().declare_token(k("alive"))
         self.publisher = Publisher(pubs, self._recorded("status", self.status),
                                    self._recorded("telemetry", self.telemetry),
-                                   self._on_status)
+                                   self._on_status, self.outbox.send)
         self.inputs = Inputs(s, lambda: self.cfg, asyncio.get_running_loop(), Handlers(
             trajectory=self._on_trajectory, map=self._on_map, command=self._on_command,
-            config=self._on_config, estimator=self._on_estimator), self.decoder, self.report)
+            config=self._on_config, estimator=self._on_estimator), self.decoder, self.report,
+            self.outbox.send)
         self.inputs.record = self._record_input
         if self.cfg.ros2.enabled:
-            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put)
+            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send)
 
     def _ros2_put(self, kind: str, decode: DecodeFn, payload: bytes) -> None:
         """A ROS message, on Zenoh's thread: the inputs' byte cap and rate limit, then

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from companion import messages as msgs
+from companion.outbox import Send, send_now
 
 log = logging.getLogger("rota.companion")
 
@@ -84,14 +85,23 @@ class Reporter:
         return list(self.events)[-n:]
 
 
+def _put(publisher: Any, name: str, payload: bytes) -> None:
+    try:
+        publisher.put(payload)
+    except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
+        log.warning("publishing %s failed: %s", name, exc)
+
+
 class Publisher:
     """Puts JSON on the service's Zenoh publishers; publishes telemetry at
     ``telemetry_rate_hz`` and status at ``status_rate_hz``."""
 
     def __init__(self, publishers: dict[str, Any], status: Callable[[], dict[str, Any]],
                  telemetry: Callable[[], dict[str, Any]],
-                 on_status: Callable[[dict[str, Any]], None] = lambda s: None) -> None:
+                 on_status: Callable[[dict[str, Any]], None] = lambda s: None,
+                 send: Send = send_now) -> None:
         self._pub = publishers
+        self._send = send
         self._status = status
         self._telemetry = telemetry
         self._on_status = on_status
@@ -101,10 +111,7 @@ class Publisher:
         self.put_bytes(name, msgs.dumps(obj))
 
     def put_bytes(self, name: str, payload: bytes) -> None:
-        try:
-            self._pub[name].put(payload)
-        except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
-            log.warning("publishing %s failed: %s", name, exc)
+        self._send(_put, self._pub[name], name, payload)
 
     def publish_status(self) -> None:
         status = self._status()

@@ -22,16 +22,28 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-#: CPU priority of worker processes: the setpoint stream is time-critical, they are not.
-WORKER_NICE = 10
+#: Worker processes run this many nice levels below the service (the setpoint
+#: stream is time-critical, they are not) ...
+WORKER_NICE_STEP = 5
+#: ... but never below ordinary work (nice 0): a re-time or decode starved by an
+#: unrelated busy process runs into its time budget and is refused. Measured on a
+#: busy 2-core machine: at nice +5 beside two busy loops, a small map took over
+#: 10 s to decode and load.
+WORKER_NICE_FLOOR = 0
 
 
 class WorkerDied(RuntimeError):
     """The worker process died during a call; the message says how and when."""
 
 
-def _init(nice: int) -> None:
-    os.nice(nice)
+def worker_nice(parent: int) -> int:
+    """The nice level of a worker of a process at nice ``parent``."""
+    return max(parent + WORKER_NICE_STEP, WORKER_NICE_FLOOR)
+
+
+def _init() -> None:
+    parent = os.getpriority(os.PRIO_PROCESS, 0)  # inherited
+    os.nice(worker_nice(parent) - parent)
     # Ctrl-C in a terminal goes to the whole process group: the service decides
     # when its workers stop, a KeyboardInterrupt traceback in one helps nobody
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -71,7 +83,7 @@ class Worker:
             # spawn, not fork: the parent runs Zenoh and MAVSDK threads
             self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                              mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_init, initargs=(WORKER_NICE,))
+                                             initializer=_init)
             self._on_spawn(self._pool)
         return self._pool
 

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from sitl.host_steal import HostSteal, StealMonitor
+
 
 @dataclass
 class SimReport:
@@ -33,6 +35,9 @@ class SimReport:
     #: (host monotonic s, the same clock as the service's), ``time_s`` (sim), and
     #: ``position`` (world ENU), ``velocity``, ``acceleration`` (ENU), ``mode``
     setpoints: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the host's steal counters while the vehicle flew (what a virtual machine's
+    #: host took from its CPUs: :mod:`sitl.host_steal`)
+    host_steal: HostSteal = field(default_factory=HostSteal)
 
 
 def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - other process
@@ -123,8 +128,10 @@ class SimProcess:
         self._ctx = multiprocessing.get_context("spawn")
         self._conn: Any = None
         self._proc: Any = None
+        self.steal_monitor = StealMonitor()
 
     def __enter__(self) -> SimProcess:
+        self.steal_monitor.start()
         parent, child = self._ctx.Pipe()
         self._proc = self._ctx.Process(target=_child, args=(child, self.options), daemon=True)
         self._proc.start()
@@ -168,6 +175,9 @@ class SimProcess:
                     self.report = item
                     break
         finally:
+            self.steal_monitor.stop()
+            if self.report is not None:
+                self.report.host_steal = self.steal_monitor.samples()
             self._proc.join(5)
             if self._proc.is_alive():
                 self._proc.kill()

@@ -10,6 +10,10 @@ stamps, so two setpoints that arrive together are not mistaken for a jump, and
 a gap never excuses a leap: the step after a gap may be at most what the
 allowed speed covers in :data:`MAX_STEP_DT` (a stream that stalled and resumed
 where the wall clock says the plan now is would jump).
+
+On a virtual machine the host may take a CPU away for about 100 ms
+(:mod:`sitl.host_steal`); given the host's steal counters, a gap is measured net
+of the time the host took within it, and the figures say how much that was.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from sitl.host_steal import HostSteal
 
 #: Stamps carry whole milliseconds.
 STAMP_RESOLUTION_S = 1e-3
@@ -40,6 +46,9 @@ class StreamFigures:
     largest_jump_m: float
     outside_fence: int
     non_finite: int
+    host_steal_gaps: int = 0  # send gaps within which the host took a CPU away
+    host_steal_s: float = 0.0  # how much it took within them (s), left out of them
+    max_gap_with_steal_s: float = 0.0  # the largest send gap, the host's time in it
 
     def problems(self, max_gap_s: float = 0.1, p99_gap_s: float = 0.025) -> list[str]:
         """What breaks the stream's promises (empty: none)."""
@@ -64,24 +73,32 @@ class StreamFigures:
                 f"{self.max_gap_s * 1e3:.1f} ms, p99 {self.p99_gap_s * 1e3:.1f} ms (arrival: max "
                 f"{self.max_arrival_gap_s * 1e3:.1f}, p99 {self.p99_arrival_gap_s * 1e3:.1f} ms); "
                 f"fastest step {self.max_speed:.2f} m/s, {self.jumps} jumps, "
-                f"{self.outside_fence} outside the fence, {self.non_finite} non-finite")
+                f"{self.outside_fence} outside the fence, {self.non_finite} non-finite"
+                + (f"; gaps net of {self.host_steal_s * 1e3:.0f} ms the host took a CPU "
+                   f"away within {self.host_steal_gaps} of them (largest gap with it: "
+                   f"{self.max_gap_with_steal_s * 1e3:.1f} ms)" if self.host_steal_gaps
+                   else ""))
 
 
-def _gaps(t: np.ndarray, pauses: Sequence[tuple[float, float]], wall: np.ndarray) -> np.ndarray:
-    """Gaps of ``t``, leaving out those that span a pause (wall-clock intervals in
-    which the sender was stopped on purpose)."""
+def _gaps(t: np.ndarray, pauses: Sequence[tuple[float, float]], wall: np.ndarray,
+          host_steal: HostSteal) -> tuple[np.ndarray, np.ndarray]:
+    """Gaps of ``t`` net of what the host took within them, leaving out those that
+    span a pause (wall-clock intervals in which the sender was stopped on purpose);
+    and what the host took."""
     dt = np.diff(t)
+    stolen = host_steal.excuse(dt, wall[:-1], wall[1:])
     keep = np.ones(len(dt), dtype=bool)
     for a, b in pauses:
         keep &= ~((wall[:-1] <= b) & (wall[1:] >= a))
-    return dt[keep]
+    return (dt - stolen)[keep], stolen[keep]
 
 
 def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
                  fence: tuple[Sequence[float], Sequence[float]] | None = None,
                  origin: Sequence[float] = (0.0, 0.0, 0.0),
                  window: tuple[float, float] | None = None,
-                 pauses: Sequence[tuple[float, float]] = ()) -> StreamFigures:
+                 pauses: Sequence[tuple[float, float]] = (),
+                 host_steal: HostSteal | None = None) -> StreamFigures:
     """Check the setpoints received within ``window`` (host monotonic seconds).
 
     Args:
@@ -89,6 +106,8 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         allowed_speed: no setpoint may move faster than this from the one before (m/s).
         fence: ``(min, max)`` ENU corners relative to ``origin`` (the vehicle's home).
         pauses: wall-clock intervals to leave out of the gaps (the sender was stopped).
+        host_steal: the host's steal counters over the flight: gaps are measured
+            net of the time the host took a CPU away within them.
     """
     wall = np.asarray(setpoints["wall_time"], dtype=float)
     keep = np.ones(len(wall), dtype=bool)
@@ -104,8 +123,8 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
     n = len(wall)
     if n < 2:
         return StreamFigures(n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0, int(n - finite.sum()))
-    gaps = _gaps(sent, pauses, wall)
-    arrivals = _gaps(wall, pauses, wall)
+    gaps, stolen = _gaps(sent, pauses, wall, host_steal or HostSteal())
+    arrivals, _ = _gaps(wall, pauses, wall, host_steal or HostSteal())
     dt = np.clip(np.diff(sent), 0.0, MAX_STEP_DT) + STAMP_RESOLUTION_S
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)
     speed = np.where(np.isfinite(step), step / dt, np.inf)
@@ -126,4 +145,6 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         p99_arrival_gap_s=pct(arrivals),
         max_speed=float(np.nanmax(speed)), jumps=int(np.count_nonzero(over)),
         largest_jump_m=float(np.nanmax(np.where(over, step, 0.0))),
-        outside_fence=outside, non_finite=int(n - finite.sum()))
+        outside_fence=outside, non_finite=int(n - finite.sum()),
+        host_steal_gaps=int(np.count_nonzero(stolen)), host_steal_s=float(stolen.sum()),
+        max_gap_with_steal_s=float((gaps + stolen).max()) if len(gaps) else 0.0)

@@ -26,9 +26,9 @@ from companion.demo import (
     demo_config,
     fly_to_goal,
     free_tcp_port,
-    held_position,
     plan_async,
     running,
+    start_holding,
     take_off,
     to_local,
     trajectory_message,
@@ -68,11 +68,10 @@ async def start_flight(gs, sim, world, ident: str, progress: float = 0.0):
     """Take off, publish the planner's trajectory, start; wait for ``progress``."""
     home = sim.home_enu
     await take_off(gs, world, home)
-    here = held_position(gs, home)
+    here = await start_holding(gs) + home
     traj = await plan_async(world, v_max=SPEED, a_max=2.0, start=here,
                             goal=[world.goal[0], world.goal[1], here[2]])
     gs.publish("trajectory", trajectory_message(to_local(traj, home), ident))
-    assert (await gs.command("start"))["ok"]
     if progress:
         await gs.wait_for(lambda s: (s.get("progress") or 0) > progress, 30, "progress")
     return traj
@@ -103,7 +102,8 @@ def test_three_replans_reach_the_goal_without_collision_or_jumps_and_are_recorde
     assert not report.collisions
     # what the vehicle received: no gap over 100 ms, no jump, inside the fence
     figures = check_stream(report.setpoints, SPEED + blend_speed(1.0),
-                           ((-30.0, -30.0, -1.0), (30.0, 30.0, 5.0)), report.home_enu, window)
+                           ((-30.0, -30.0, -1.0), (30.0, 30.0, 5.0)), report.home_enu, window,
+                           host_steal=report.host_steal)
     print("vehicle side:", figures.summary())
     assert not figures.problems(), figures.summary()
     ids = {s.get("trajectory_id") for s in statuses} - {None}

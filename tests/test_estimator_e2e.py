@@ -20,6 +20,7 @@ from companion.demo import (
     map_message,
     plan_async,
     running,
+    start_holding,
     take_off,
     to_local,
     trajectory_message,
@@ -74,18 +75,16 @@ def test_estimator_learns_in_flight_slows_braking_zones_and_survives_restart():
             home = sim.home_enu
             async with running(cfg) as (_, gs):
                 await take_off(gs, world, home)
+                await start_holding(gs)
                 ends = [np.asarray(world.start), np.asarray(world.goal)]
                 first = None
                 for k in range(4):  # there and back, twice
-                    # like a planner: from the commanded state (the hold), once there is one
-                    sp = gs.telemetry.get("setpoint") or gs.telemetry
-                    here = np.asarray(sp["position"]) + home
+                    # like a planner: from the commanded state (the hold)
+                    here = np.asarray(gs.telemetry["setpoint"]["position"]) + home
                     traj = await plan_async(world, v_max=2.0, a_max=2.0, start=here,
                                             goal=ends[(k + 1) % 2])
                     first = first or traj
                     gs.publish("trajectory", trajectory_message(to_local(traj, home), f"leg{k}"))
-                    if k == 0:
-                        assert (await gs.command("start"))["ok"]
                     await gs.wait_for(lambda s, k=k: s.get("trajectory_id") == f"leg{k}", 20,
                                       f"leg {k}")
                     await gs.wait_for(lambda s: s.get("command") == "hold", 60, "leg end")

@@ -21,7 +21,7 @@ from companion.inputs import RateLimit
 from companion.plan import Command, Plan
 from companion.status import Reporter
 from companion.stream import LOSS_SHARE, SetpointStream
-from companion.worker import Worker, WorkerDied, describe_exit
+from companion.worker import Worker, WorkerDied, describe_exit, worker_nice
 from rota import Limits, RetimeInput, retime
 from rota.trajectory import SampledTrajectory
 
@@ -193,3 +193,20 @@ def test_a_dead_worker_is_seen_idle_and_during_a_call():
 
     idle, pid, again = asyncio.run(main())
     assert idle == "killed by SIGKILL" and again != pid
+
+
+def _nice() -> int:
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def test_workers_run_below_the_service_but_not_below_ordinary_work():
+    assert worker_nice(-5) == 0 and worker_nice(0) == 5 and worker_nice(-20) == 0
+
+    async def main():
+        w = Worker("test")
+        try:
+            return await w.call(60.0, _nice)
+        finally:
+            w.close()
+
+    assert asyncio.run(main()) == worker_nice(_nice())

@@ -21,9 +21,9 @@ from companion.demo import (
     closest_approach,
     demo_config,
     free_tcp_port,
-    held_position,
     plan_async,
     running,
+    start_holding,
     take_off,
     to_local,
 )
@@ -87,11 +87,10 @@ def test_ego_planner_over_zenoh_flies_the_forest(layout):
             peer.publish(ckey, pointcloud_cdr(world.voxel_points(0.1) - home, s))
             await gs.wait_for(lambda st: st.get("map_voxels"), 20, "the map over ROS")
             await take_off(gs)
-            here = held_position(gs, home)  # EGO-Planner plans from the odometry
+            here = await start_holding(gs) + home  # the planner plans from the hold
             goal = np.array([world.goal[0], world.goal[1], here[2]])
             first = await plan_async(world, v_max=SPEED, a_max=2.0, start=here, goal=goal)
             peer.publish(bkey, bspline_cdr(to_local(first, home), s, traj_id=0))
-            await gs.command_confirmed("start")
             await gs.wait_for(lambda st: st.get("trajectory_id") == "bspline-0"
                               and (st.get("progress") or 0) > 0.35, 40, "bspline-0 under way")
             # a replan from the commanded state, as EGO-Planner does, and a broken one

@@ -16,6 +16,7 @@ from typing import Any
 
 import zenoh
 
+from companion.outbox import Send, send_now
 from companion.ros2 import decode
 from companion.ros2.encode import retimed_cdr_from_json, status_cdr
 from companion.ros2.layout import Endpoint, RmwZenoh, make_layout
@@ -50,12 +51,20 @@ def outputs(s: Ros2Settings) -> dict[str, Endpoint]:
             for name, (topic, typename) in table.items() if topic}
 
 
+def _put(pub: Any, name: str, cdr: bytes, options: dict[str, Any]) -> None:
+    try:
+        pub.put(cdr, **options)
+    except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
+        log.warning("publishing ROS %s failed: %s", name, exc)
+
+
 class Ros2Link:
     """Declares everything on ``session``; ``close()`` undeclares it."""
 
     def __init__(self, session: zenoh.Session, settings: Ros2Settings,
-                 deliver: Deliver) -> None:
+                 deliver: Deliver, send: Send = send_now) -> None:
         self.settings = settings
+        self._send = send
         self.layout = make_layout(settings, str(session.zid()))
         self._deliver = deliver
         self._objs: list[Any] = []
@@ -101,10 +110,8 @@ class Ros2Link:
         if pub is None:
             return
         self._seq[name] += 1
-        try:
-            pub.put(cdr, **self.layout.put_options(self._endpoints[name], self._seq[name]))
-        except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
-            log.warning("publishing ROS %s failed: %s", name, exc)
+        self._send(_put, pub, name, cdr,
+                   self.layout.put_options(self._endpoints[name], self._seq[name]))
 
     def publish_status(self, status: dict[str, Any]) -> None:
         if "status" in self._pubs:
