@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import contextlib
+import gc
 import logging
 import os
 import sys
@@ -139,6 +140,12 @@ class Service:
         self._open_zenoh(z)
         warm, _ = await asyncio.gather(self.retimer.start(), self.decoder.start())
         log.info("re-time worker warm (solver compiled or loaded in %.1f s)", warm)
+        # What start-up made (modules, configuration, Zenoh and MAVSDK objects) lives
+        # as long as the service: out of the garbage collector's sight, a full
+        # collection walks only what came since (in a full collection every thread
+        # waits, the setpoint stream too).
+        gc.collect()
+        gc.freeze()
         sup, z = self.supervisor, self.cfg.zenoh
         sup.start("connection", self._connection, forever=False)
         sup.start("stream", lambda: self.stream.run(self.notifier.watchdog))
@@ -200,6 +207,7 @@ class Service:
             self.publisher.close()
         if self.session is not None:
             self.session.close()
+        gc.unfreeze()
         log.info("service stopped")
         logging.getLogger("rota").removeHandler(self._log_to_record)
         self.recorder.close()

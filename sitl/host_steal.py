@@ -28,6 +28,10 @@ CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 #: Steal is accounted on the CPU it hit when that CPU runs again, at its next
 #: timer tick: a sample this long after an interval still belongs to it (s).
 ACCOUNTING_DELAY_S = 0.02
+#: A gap may be this much shorter than the time the host took and still hold it:
+#: the counters round down to whole ticks, and a task asleep on the CPU taken may
+#: be woken on the other one a little before the first runs again (s).
+OVERLAP_SLACK_S = 2.0 / CLOCK_TICKS
 
 
 def read_steal() -> np.ndarray:
@@ -69,9 +73,9 @@ class HostSteal:
     def excuse(self, gaps: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """How much of each gap the host took. Every event, the largest first, is
         charged to the largest gap not yet charged whose interval ``a[k]`` to
-        ``b[k]`` (host monotonic s) meets it, and only if that gap is at least as
-        long as the event: a stream whose CPU was taken away for so long has such
-        a gap; if none has, the host took another CPU. One event per gap (the
+        ``b[k]`` (host monotonic s) meets it, and only if that gap is about as long
+        as the event (:data:`OVERLAP_SLACK_S`): a stream whose CPU was taken away
+        for so long has such a gap; if none has, the host took another CPU. One event per gap (the
         stream runs on one CPU at a time), and never more than the gap's excess
         over the stream's usual spacing (its median gap)."""
         charged = np.zeros(len(gaps))
@@ -79,7 +83,7 @@ class HostSteal:
             return charged
         usual = float(np.median(gaps))
         for t0, t1, amount in sorted(self.events(), key=lambda e: -e[2]):
-            k = np.flatnonzero((b >= t0) & (a <= t1) & (charged == 0) & (gaps >= amount))
+            k = np.flatnonzero((b >= t0) & (a <= t1) & (charged == 0) & (gaps >= amount - OVERLAP_SLACK_S))
             if len(k):
                 j = k[np.argmax(gaps[k])]
                 charged[j] = min(amount, max(gaps[j] - usual, 0.0))

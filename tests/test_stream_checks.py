@@ -69,3 +69,12 @@ def test_steal_elsewhere_excuses_nothing_and_one_gap_is_charged_once():
 def test_the_counters_read_on_this_machine():
     steal = read_steal()
     assert steal.ndim == 1 and np.all(steal >= 0)
+
+
+def test_a_gap_a_tick_shorter_than_the_hosts_time_is_charged_its_excess_only():
+    sent = stream_with_gap(0.105)  # woken on the other CPU 15 ms before the first ran again
+    figures = check_stream(record(sent), 2.0, host_steal=steal_at(sent[100] + 0.004, 0.12))
+    assert abs(figures.host_steal_s - 0.085) < 1e-9 and abs(figures.max_gap_s - 0.02) < 1e-9
+    sent = stream_with_gap(0.09)  # too short to hold it: the host took another CPU
+    figures = check_stream(record(sent), 2.0, host_steal=steal_at(sent[100] + 0.004, 0.12))
+    assert figures.host_steal_s == 0.0 and abs(figures.max_gap_s - 0.09) < 1e-9
