@@ -239,15 +239,27 @@ class UncertaintyEstimator:
         Never shorter: the evidence shows the memory of the tracking error only. The
         estimation error's own memory is invisible (PX4 reports a std, not the error), so
         finding no memory in what the companion sees is no evidence that there is none."""
-        fits = self.fits()
-        conf = min(fits, key=lambda f: abs(f.memory_s - self.configured_memory_s))
-        if not self.settings.learn_memory:
-            return conf, False
-        top = min(fits, key=lambda f: f.nll)
-        if (top.memory_s > conf.memory_s
-                and conf.nll - top.nll >= self.settings.memory_evidence):
+        conf, top, gain = self._memory_evidence()
+        if self.settings.learn_memory and gain >= self.settings.memory_evidence:
             return top, True
         return conf, False
+
+    def _memory_evidence(self) -> tuple[Fit, Fit, float]:
+        """The fit at the configured memory time, the most likely longer one, and the
+        log-likelihood gain of lengthening it (0 if no longer one is more likely)."""
+        fits = self.fits()
+        conf = min(fits, key=lambda f: abs(f.memory_s - self.configured_memory_s))
+        top = min(fits, key=lambda f: f.nll)
+        if top.memory_s <= conf.memory_s:
+            return conf, conf, 0.0
+        return conf, top, conf.nll - top.nll
+
+    @property
+    def memory_gain(self) -> float:
+        """The evidence for a longer memory time than the configured one: the
+        log-likelihood gain of the most likely one (lengthened at
+        ``memory_evidence``)."""
+        return self._memory_evidence()[2]
 
     @property
     def m(self) -> float:
@@ -302,7 +314,7 @@ class UncertaintyEstimator:
                 "memory_s": used.memory_s,
                 "estimate": {"m": round(self.m, 5), "b": round(self.b, 5),
                              "memory_s": self.memory_s, "m_std": round(sm, 5),
-                             "b_std": round(sb, 5)},
+                             "b_std": round(sb, 5), "memory_gain": round(self.memory_gain, 3)},
                 "prior": {"m": self.prior.m, "b": self.prior.b,
                           "memory_s": self.prior.memory_s},
                 "samples": self.samples, "outliers": self.outliers,

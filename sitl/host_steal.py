@@ -83,7 +83,8 @@ class HostSteal:
             return charged
         usual = float(np.median(gaps))
         for t0, t1, amount in sorted(self.events(), key=lambda e: -e[2]):
-            k = np.flatnonzero((b >= t0) & (a <= t1) & (charged == 0) & (gaps >= amount - OVERLAP_SLACK_S))
+            k = np.flatnonzero((b >= t0) & (a <= t1) & (charged == 0)
+                               & (gaps >= amount - OVERLAP_SLACK_S))
             if len(k):
                 j = k[np.argmax(gaps[k])]
                 charged[j] = min(amount, max(gaps[j] - usual, 0.0))
