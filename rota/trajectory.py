@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import interpolate
 
 from rota.errors import InputError
+from rota.validate import KeepsReadOnly
 
 FloatArray = NDArray[np.float64]
 
@@ -50,7 +51,7 @@ def _finite_array(value: ArrayLike, name: str, ndim: int, width: int | None = No
 
 
 @dataclass(frozen=True)
-class Trajectory:
+class Trajectory(KeepsReadOnly):
     """Base class: a C2 path over trajectory time ``[t0, t1]``.
 
     Subclasses provide ``_spline`` (a scipy piecewise-polynomial object evaluating

@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rota.errors import InputError
 from rota.jit import kernels
-from rota.validate import positive, vector3
+from rota.validate import KeepsReadOnly, positive, vector3
 
 FloatArray = NDArray[np.float64]
 
@@ -162,7 +162,7 @@ class _Bricks:
 
 
 @dataclass(frozen=True, eq=False)
-class VoxelMap:
+class VoxelMap(KeepsReadOnly):
     """Occupied voxels of an occupancy map (ENU, metres).
 
     Attributes:

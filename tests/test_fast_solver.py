@@ -5,6 +5,9 @@ objectives within 1e-6 (Clarabel at 1e-9)."""
 
 from __future__ import annotations
 
+import json
+import multiprocessing
+
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -107,36 +110,67 @@ def test_warm_up_and_cache_directory(tmp_path, monkeypatch):
     assert seconds > 0 and jit.kernels() is jit.kernels()
 
 
-def test_warm_up_compiles_what_the_flight_service_runs():
-    """After warm_up, re-timing as the service does (a forest B-spline with its map, error
-    memory, per-axis acceleration limits, an estimator's model) compiles
-    nothing more: every kernel signature it needs was made before READY. (Found missing:
-    the error-memory kernel, which made a first replan take 0.4 s and a re-time at
-    takeover miss its 2 s budget on a cold cache.)"""
+def _compiled_by_the_service() -> dict[str, list[str]]:
+    """In a fresh process: warm up, then re-time as the flight service does; the kernel
+    signatures that were compiled (or loaded) after the warm-up."""
+    import pickle
+
     import rota
+    from companion.config import Config
+    from companion.demo import map_message, to_local, trajectory_message
+    from companion.messages import parse_map, parse_trajectory
+    from companion.proving import circle_message
     from rota import jit
     from rota.chance import UncertaintyModel
     from rota.robust import Safety
-    from rota.voxelmap import VoxelMap
     from sitl.planner import plan
     from sitl.world import get_world
 
     rota.warm_up()
     k = jit.kernels()
 
-    def compiled() -> dict[str, int]:
-        return {name: len(getattr(k, name).signatures) for name in k.__all__}
+    def compiled() -> dict[str, list[str]]:
+        return {name: [str(s) for s in getattr(k, name).signatures] for name in k.__all__}
+
+    def sent(obj):  # as it reaches the re-time worker: pickled twice
+        return pickle.loads(pickle.dumps(pickle.loads(pickle.dumps(obj))))
 
     before = compiled()
-    world = get_world("forest", seed=5)
-    vmap = VoxelMap.from_points(world.voxel_points(0.1), 0.1)
-    traj = plan(world, 2.0, 2.0, clearance=0.6)
-    for model in (UncertaintyModel(m=0.27, b=0.06, memory_s=1.0),
-                  UncertaintyModel(memory_s=1.5, per_axis=True), UncertaintyModel()):
-        r = retime(RetimeInput(trajectory=traj, limits=Limits(2.0, (2.0, 2.0, 1.5)), dtau=0.05,
-                               safety=Safety(map=vmap, uncertainty=model)))
-        assert r.ok, r.message
-    assert compiled() == before
+    cfg, now = Config(), None
+    def local_map(world):  # noqa: ANN001, ANN202
+        home = np.array([world.start[0], world.start[1], 0.0])
+        return home, sent(parse_map(json.dumps(map_message(world, home)).encode(), cfg, now))
+
+    forest = get_world("forest", seed=5)
+    home, forest_map = local_map(forest)
+    spline = to_local(plan(forest, 2.0, 2.0, clearance=0.6), home)
+    circle = circle_message(np.array([3.6, 0.0, 2.0]), 3.6, np.pi, 2.0, 10.0, "c")  # proving
+    flights = [(sent(parse_trajectory(json.dumps(m).encode(), cfg, now).trajectory), vmap)
+               for m, vmap in ((trajectory_message(spline, "s"), forest_map),
+                               (circle, local_map(get_world("pillar"))[1]))]
+    for traj, vmap in flights:
+        for model in (UncertaintyModel(m=0.27, b=0.06, memory_s=1.0),
+                      UncertaintyModel(memory_s=1.5, per_axis=True), UncertaintyModel()):
+            r = retime(RetimeInput(trajectory=traj, limits=Limits(2.0, (2.0, 2.0, 1.5)),
+                                   dtau=0.05, safety=Safety(map=vmap, uncertainty=model)))
+            assert r.ok, r.message
+    after = compiled()
+    return {name: sorted(set(after[name]) - set(before[name])) for name in after
+            if set(after[name]) != set(before[name])}
+
+
+def test_warm_up_compiles_what_the_flight_service_runs():
+    """After warm_up, re-timing as the service does (a forest B-spline and a sampled
+    circle, decoded from JSON and pickled to the worker, with the map likewise, error
+    memory, per-axis acceleration limits, an estimator's model) compiles nothing more:
+    every kernel signature it needs was made before READY. Run in a fresh process, as
+    the worker is. (Found missing: the error-memory kernel, which made a first replan
+    take 0.4 s; and arrays unpickled writable, a kernel type of their own, which made
+    the first re-time after a map miss its 2 s budget on a cold cache.)"""
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(1) as pool:
+        new = pool.apply(_compiled_by_the_service)
+    assert not new, new
 
 
 def test_greedy_profile_stays_feasible_on_a_long_deceleration():
