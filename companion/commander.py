@@ -24,7 +24,7 @@ from companion.config import Config
 from companion.messages import COMMANDS
 from companion.plan import Brake, Hold, Plan
 from companion.replanner import Replanner
-from companion.status import Reporter
+from companion.status import Reporter, after_setpoint
 from companion.stream import SetpointStream
 
 #: Commands that never wait for another command to finish.
@@ -242,7 +242,8 @@ class Commander:
         """10 Hz: link, health, PX4 mode, tracking error, planner silence."""
         last = time.monotonic()
         while True:
-            await asyncio.sleep(0.1)
+            await asyncio.sleep(0.08)
+            await after_setpoint(self.stream.beat, 0.05)  # in the stream's idle time
             now = time.monotonic()
             stalled, last = now - last > 0.5, now
             if stalled:  # the process was frozen: telemetry is stale until it catches up

@@ -15,14 +15,16 @@ import numpy as np
 from companion.autopilot import Autopilot
 from companion.config import Config
 from companion.estimator import UncertaintyEstimator
-from companion.status import Reporter
+from companion.status import Reporter, after_setpoint
 
 
 class Learning:
     def __init__(self, estimator: UncertaintyEstimator | None, autopilot: Autopilot,
                  flying: Callable[[], bool], track_errors: Callable[[], np.ndarray],
-                 link_timeout_s: Callable[[], float], report: Reporter) -> None:
+                 link_timeout_s: Callable[[], float], report: Reporter,
+                 beat: asyncio.Event | None = None) -> None:
         self.estimator = estimator
+        self._beat = beat or asyncio.Event()  # the stream's (set after every setpoint)
         self.autopilot = autopilot
         self._flying = flying
         self._track_errors = track_errors
@@ -33,7 +35,8 @@ class Learning:
         """5 Hz: feed the estimator while flying in offboard; save every 10 s."""
         k = 0
         while self.estimator is not None:
-            await asyncio.sleep(0.2)
+            await asyncio.sleep(0.18)
+            await after_setpoint(self._beat, 0.05)  # in the stream's idle time
             k += 1
             est, tel = self.estimator, self.autopilot.telemetry
             if k % 50 == 0 and est.samples:

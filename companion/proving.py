@@ -205,7 +205,8 @@ class Flight:
         sp = setpoints if setpoints is not None else self.sim.setpoints()
         fence = (self.cfg.safety.geofence_min, self.cfg.safety.geofence_max)
         return check_stream(sp, self.allowed_speed, fence, self.sim.home_enu, window,
-                            self.pauses, self.sim.steal_monitor.samples())
+                            self.pauses, self.sim.steal_monitor.samples(),
+                            self.cfg.stream.stall_budget_s)
 
 
 def statuses_errors(statuses: Any) -> list[str]:

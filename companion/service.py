@@ -95,7 +95,8 @@ class Service:
         self.replanner.flying = self.commander.flying
         self.learning = Learning(self.estimator, self.autopilot, self.commander.flying,
                                  lambda: list(self.commander.track_errors),
-                                 lambda: self.cfg.mavlink.link_timeout_s, self.report)
+                                 lambda: self.cfg.mavlink.link_timeout_s, self.report,
+                                 self.stream.beat)
         self.reconfigure = Reconfigure(cfg, lambda: self.cfg, self._use_config, self.report)
         self.exposed: list[str] = []  # what [zenoh] insecure lets through
         self.supervisor = Supervisor(self.report)

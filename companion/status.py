@@ -30,6 +30,17 @@ STATUS_EVENTS = 10
 REPEAT_WINDOW_S = 1.0
 
 
+async def after_setpoint(beat: asyncio.Event, timeout_s: float) -> None:
+    """Wait for the stream's next setpoint (``beat``), at most ``timeout_s``: periodic
+    work that waits here runs just after a setpoint, in the stream's idle time,
+    not across its next deadline. (Not asyncio.wait_for, which in Python 3.11 can
+    swallow a cancellation that comes with the beat; then the service cannot stop.)"""
+    beat.clear()
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(timeout_s):
+            await beat.wait()
+
+
 class Reporter:
     """Errors, warnings and events in words. An error is logged and kept as
     ``last_error``; everything goes into the event log that status carries."""
@@ -140,14 +151,8 @@ class Publisher:
         while True:
             due = max(due + period, time.monotonic() - period)  # no burst after a stall
             await asyncio.sleep(max(due - time.monotonic(), 0.0))
-            if beat is not None:
-                beat.clear()
-                # (bounded: a stream being restarted does not stop status; not
-                # asyncio.wait_for, which in Python 3.11 can swallow a cancellation
-                # that comes with the beat, and then the service cannot stop)
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(period):
-                        await beat.wait()
+            if beat is not None:  # (bounded: a stream being restarted does not stop status)
+                await after_setpoint(beat, period)
             self.put("telemetry", self._telemetry())
             k += 1
             if k % status_every == 0:

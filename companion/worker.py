@@ -104,20 +104,25 @@ class Worker:
         loop = asyncio.get_running_loop()
         start = time.monotonic()
         pool = self.pool()
-        future = loop.run_in_executor(pool, fn, *args)
-        procs = self._processes(pool)
+        procs: list[Any] = []
         try:
             # (asyncio.timeout, not wait_for: in Python 3.11 wait_for can swallow a
             # cancellation that comes as the result arrives, and the task that
             # called it then outlives the supervisor's close)
             async with asyncio.timeout(timeout_s):
-                return await future
+                # submitted from a thread: a submit to a fresh pool starts its process
+                # (fork, exec, hand-over: 1-10 ms measured beside two busy loops), which
+                # would hold up the setpoint stream at every respawn
+                submitted = await loop.run_in_executor(None, pool.submit, fn, *args)
+                procs = self._processes(pool)
+                return await asyncio.wrap_future(submitted)
         except TimeoutError:
             if self._pool is pool:  # (the supervisor may have restarted it already)
                 self.restart()
             raise TimeoutError(f"{self.name} did not finish within {timeout_s:.2f} s; "
                                "worker restarted") from None
         except BrokenProcessPool:
+            procs = procs or self._processes(pool)
             for _ in range(10):  # the exit status shows a moment after the pipes close
                 cause = next((describe_exit(p.exitcode) for p in procs
                               if p.exitcode is not None), "died")

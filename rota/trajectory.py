@@ -151,9 +151,11 @@ def _pieces_of(spline: object) -> tuple[FloatArray, FloatArray]:
     else:  # BSpline: derivatives at the start of every non-empty knot span (compiled)
         from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
 
+        # (copies: the kernel is compiled for writable arrays, and a spline made from a
+        # decoded message may hold read-only ones)
         breaks, coefs = kernels().bspline_pieces(
-            np.ascontiguousarray(spline.t, dtype=float),
-            np.ascontiguousarray(spline.c, dtype=float), int(spline.k))
+            np.array(spline.t, dtype=float, order="C"),
+            np.array(spline.c, dtype=float, order="C"), int(spline.k))
     # A zero-length piece (repeated break) is never selected; keep shapes consistent.
     breaks = np.ascontiguousarray(breaks, dtype=float)
     breaks.setflags(write=False)

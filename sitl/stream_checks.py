@@ -8,8 +8,8 @@ lost on the way shows as a gap too) and between their arrival times at the
 vehicle (which add the simulator's own scheduling delays). Jumps use the send
 stamps, so two setpoints that arrive together are not mistaken for a jump, and
 a gap never excuses a leap: the step after a gap may be at most what the
-allowed speed covers in :data:`MAX_STEP_DT` (a stream that stalled and resumed
-where the wall clock says the plan now is would jump).
+allowed speed covers in the stall budget (a stream that stalled longer and
+resumed where the wall clock says the plan now is would jump).
 
 On a virtual machine the host may take a CPU away for about 100 ms
 (:mod:`sitl.host_steal`); given the host's steal counters, a gap is measured net
@@ -27,8 +27,12 @@ from sitl.host_steal import HostSteal
 
 #: Stamps carry whole milliseconds.
 STAMP_RESOLUTION_S = 1e-3
-#: The longest spacing that may excuse a step between two setpoints (s).
-MAX_STEP_DT = 0.1
+#: The longest spacing that may excuse a step between two setpoints (s): the
+#: service's default stall budget (``[stream] stall_budget_s``). After a shorter
+#: stall the service goes on with its plan where the clock says (the vehicle,
+#: following the last setpoint's velocity, is there too); after a longer one it
+#: must brake from the last setpoint it sent, and a step past this is a jump.
+MAX_STEP_DT = 0.25
 
 
 @dataclass(frozen=True)
@@ -98,7 +102,8 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
                  origin: Sequence[float] = (0.0, 0.0, 0.0),
                  window: tuple[float, float] | None = None,
                  pauses: Sequence[tuple[float, float]] = (),
-                 host_steal: HostSteal | None = None) -> StreamFigures:
+                 host_steal: HostSteal | None = None,
+                 max_step_dt: float = MAX_STEP_DT) -> StreamFigures:
     """Check the setpoints received within ``window`` (host monotonic seconds).
 
     Args:
@@ -108,6 +113,8 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         pauses: wall-clock intervals to leave out of the gaps (the sender was stopped).
         host_steal: the host's steal counters over the flight: gaps are measured
             net of the time the host took a CPU away within them.
+        max_step_dt: the service's stall budget (s): the longest spacing that
+            excuses a step.
     """
     wall = np.asarray(setpoints["wall_time"], dtype=float)
     keep = np.ones(len(wall), dtype=bool)
@@ -125,7 +132,7 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         return StreamFigures(n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0, int(n - finite.sum()))
     gaps, stolen = _gaps(sent, pauses, wall, host_steal or HostSteal())
     arrivals, _ = _gaps(wall, pauses, wall, host_steal or HostSteal())
-    dt = np.clip(np.diff(sent), 0.0, MAX_STEP_DT) + STAMP_RESOLUTION_S
+    dt = np.clip(np.diff(sent), 0.0, max_step_dt) + STAMP_RESOLUTION_S
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)
     speed = np.where(np.isfinite(step), step / dt, np.inf)
     over = step > allowed_speed * dt + 0.01

@@ -120,11 +120,20 @@ def _compiled_by_the_service() -> dict[str, list[str]]:
     from companion.demo import map_message, to_local, trajectory_message
     from companion.messages import parse_map, parse_trajectory
     from companion.proving import circle_message
+    from companion.ros2.decode import (
+        decode_bspline,
+        decode_multidof,
+        decode_path,
+        decode_pointcloud,
+    )
+    from companion.ros2.encode import bspline_cdr, pointcloud_cdr
     from rota import jit
     from rota.chance import UncertaintyModel
     from rota.robust import Safety
     from sitl.planner import plan
     from sitl.world import get_world
+    from tests.test_ros2_decode import cfg as ros2_cfg
+    from tests.test_ros2_decode import multidof_cdr, path_cdr
 
     rota.warm_up()
     k = jit.kernels()
@@ -148,6 +157,16 @@ def _compiled_by_the_service() -> dict[str, list[str]]:
     flights = [(sent(parse_trajectory(json.dumps(m).encode(), cfg, now).trajectory), vmap)
                for m, vmap in ((trajectory_message(spline, "s"), forest_map),
                                (circle, local_map(get_world("pillar"))[1]))]
+    # the same over ROS 2 (rmw_zenoh's CDR): EGO-Planner's B-spline, nav_msgs/Path,
+    # MultiDOFJointTrajectory and a PointCloud2 map
+    ros = ros2_cfg(enabled=True)
+    cloud = sent(decode_pointcloud(pointcloud_cdr(forest.voxel_points(0.1) - home, ros.ros2),
+                                   ros, now))
+    samples = spline.position(np.linspace(*spline.domain, 40))
+    flights += [(sent(decode(payload, ros, now).trajectory), cloud) for decode, payload in (
+        (decode_bspline, bspline_cdr(spline, ros.ros2)),
+        (decode_path, path_cdr(samples, np.linspace(0.0, spline.duration, 40))),
+        (decode_multidof, multidof_cdr(samples, dt=spline.duration / 39)))]
     for traj, vmap in flights:
         for model in (UncertaintyModel(m=0.27, b=0.06, memory_s=1.0),
                       UncertaintyModel(memory_s=1.5, per_axis=True), UncertaintyModel()):

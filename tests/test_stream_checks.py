@@ -78,3 +78,14 @@ def test_a_gap_a_tick_shorter_than_the_hosts_time_is_charged_its_excess_only():
     sent = stream_with_gap(0.09)  # too short to hold it: the host took another CPU
     figures = check_stream(record(sent), 2.0, host_steal=steal_at(sent[100] + 0.004, 0.12))
     assert figures.host_steal_s == 0.0 and abs(figures.max_gap_s - 0.09) < 1e-9
+
+
+def test_a_step_after_a_gap_is_excused_up_to_the_stall_budget_only():
+    # 2 m/s along x, allowed 2.2 m/s: after a 0.2 s gap the plan goes on where the
+    # clock says (0.4 m further), within the 0.25 s budget
+    assert not check_stream(record(stream_with_gap(0.2), speed=2.0), 2.2).jumps
+    # after a 0.5 s gap it must not (a stalled stream resumed where the clock says)
+    late = check_stream(record(stream_with_gap(0.5), speed=2.0), 2.2)
+    assert late.jumps == 1 and abs(late.largest_jump_m - 1.0) < 1e-9
+    # a tighter budget excuses less
+    assert check_stream(record(stream_with_gap(0.2), speed=2.0), 2.2, max_step_dt=0.1).jumps
