@@ -74,6 +74,10 @@ POSITION_RATE_HZ = 30.0
 #: MAVSDK script subscribed to it alone grew 0.32 MB/min at PX4's 30 Hz, flat without it),
 #: so the service asks for no more than it uses.
 ODOMETRY_RATE_HZ = 5.0
+#: ATTITUDE, for the heading held at start only. Every message MAVSDK delivers is a
+#: callback into Python that wakes the event loop (PX4's onboard link sends attitude
+#: at 20-50 Hz); the service asks for what it uses.
+ATTITUDE_RATE_HZ = 2.0
 
 
 class AutopilotError(RuntimeError):
@@ -130,10 +134,13 @@ class Autopilot:
         with contextlib.suppress(Exception):  # the stream stops when positions stop coming
             await asyncio.wait_for(self._tel.set_rate_position_velocity_ned(POSITION_RATE_HZ),
                                    5.0)
-        try:
-            await asyncio.wait_for(self._tel.set_rate_odometry(ODOMETRY_RATE_HZ), 5.0)
-        except Exception as exc:  # noqa: BLE001 - MAVSDK raises TelemetryError; PX4's rate stays
-            log.warning("could not set PX4's ODOMETRY rate to %g Hz: %s", ODOMETRY_RATE_HZ, exc)
+        for name, rate, call in (("ODOMETRY", ODOMETRY_RATE_HZ, self._tel.set_rate_odometry),
+                                 ("ATTITUDE", ATTITUDE_RATE_HZ,
+                                  self._tel.set_rate_attitude_euler)):
+            try:
+                await asyncio.wait_for(call(rate), 5.0)
+            except Exception as exc:  # noqa: BLE001 - MAVSDK raises TelemetryError; PX4's rate stays
+                log.warning("could not set PX4's %s rate to %g Hz: %s", name, rate, exc)
         self._action = ActionAsync(system)
         self._direct = MavlinkDirectAsync(system)
         sysid = int(system._system.get_system_id())
