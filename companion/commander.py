@@ -142,7 +142,7 @@ class Commander:
         newest trajectory (if any). In offboard after a halt: fly trajectories
         again (the newest one that arrives from now on)."""
         if self.state == State.OFFBOARD and self.stream.halted is not None:
-            self.stream.halted = None
+            self.stream.resume()
             self.report.event("start: flying new trajectories again")
             return "offboard: holding until the next trajectory"
         self._require(State.AIRBORNE)
@@ -193,7 +193,7 @@ class Commander:
 
     async def cmd_abort(self) -> str:
         self.replanner.drop()
-        self.stream.next_plan = None
+        self.stream.drop_next()
         if self.stream.streaming:
             await self.stream.stop()
             await self.autopilot.hold()

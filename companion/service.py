@@ -354,6 +354,7 @@ class Service:
     # ================================================================= status
     def status(self) -> dict[str, Any]:
         now = time.monotonic()
+        said = self.report.snapshot()
         tel = self.autopilot.telemetry
         src = self.stream.source
         plan = src if isinstance(src, Plan) else None
@@ -376,9 +377,9 @@ class Service:
             setpoint_jitter_p99_ms=self.stream.jitter_p99_ms(),
             halted=self.stream.halted,
             insecure=self.exposed or None,
-            last_error=self.report.last_error,
-            warnings=[f"INSECURE: {p}" for p in self.exposed] + list(self.report.warnings),
-            events=self.report.recent(), counts=dict(self.report.counts),
+            last_error=said["last_error"],
+            warnings=[f"INSECURE: {p}" for p in self.exposed] + said["warnings"],
+            events=said["events"], counts=said["counts"],
             supervision={"task_restarts": dict(self.supervisor.restarts),
                          "worker_restarts": {w.name: w.restarts for w in (
                              self.retimer.worker, self.decoder.worker)},

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
@@ -43,7 +44,8 @@ async def after_setpoint(beat: asyncio.Event, timeout_s: float) -> None:
 
 class Reporter:
     """Errors, warnings and events in words. An error is logged and kept as
-    ``last_error``; everything goes into the event log that status carries."""
+    ``last_error``; everything goes into the event log that status carries.
+    Thread-safe (the setpoint stream reports from its own thread)."""
 
     def __init__(self) -> None:
         self.last_error: dict[str, Any] | None = None
@@ -54,23 +56,36 @@ class Reporter:
         self._last_log: tuple[int, str] = (0, "")
         self._last_log_t = 0.0
         self._repeats = 0
+        self._lock = threading.Lock()
 
     def _log(self, level: int, text: str) -> None:
-        now = time.monotonic()
-        if (level, text) == self._last_log and now - self._last_log_t < REPEAT_WINDOW_S:
-            self._repeats += 1
-            return
-        if self._repeats:
-            log.log(self._last_log[0], "(the message above repeated %d more times)",
-                    self._repeats)
-        self._last_log, self._last_log_t, self._repeats = (level, text), now, 0
+        with self._lock:
+            now = time.monotonic()
+            if (level, text) == self._last_log and now - self._last_log_t < REPEAT_WINDOW_S:
+                self._repeats += 1
+                return
+            repeats, last = self._repeats, self._last_log[0]
+            self._last_log, self._last_log_t, self._repeats = (level, text), now, 0
+        if repeats:
+            log.log(last, "(the message above repeated %d more times)", repeats)
         log.log(level, "%s", text)
 
     def _keep(self, level: str, source: str, message: str) -> None:
-        self.seq += 1
-        self.counts[level] += 1
-        self.events.append({"seq": self.seq, "stamp": time.time(), "level": level,
-                            "source": source, "message": message})
+        with self._lock:
+            self.seq += 1
+            self.counts[level] += 1
+            self.events.append({"seq": self.seq, "stamp": time.time(), "level": level,
+                                "source": source, "message": message})
+
+    def recent(self, n: int = STATUS_EVENTS) -> list[dict[str, Any]]:
+        with self._lock:
+            return list(self.events)[-n:]
+
+    def snapshot(self) -> dict[str, Any]:
+        """What status carries of it, copied at one instant."""
+        with self._lock:
+            return {"last_error": self.last_error, "warnings": list(self.warnings),
+                    "events": list(self.events)[-STATUS_EVENTS:], "counts": dict(self.counts)}
 
     def error(self, source: str, message: str) -> None:
         self._log(logging.ERROR, f"{source}: {message}")
@@ -79,7 +94,8 @@ class Reporter:
 
     def warn(self, message: str, source: str = "service") -> None:
         self._log(logging.WARNING, message)
-        self.warnings.append(message)
+        with self._lock:
+            self.warnings.append(message)
         self._keep("warning", source, message)
 
     def event(self, message: str, source: str = "service") -> None:
@@ -92,8 +108,6 @@ class Reporter:
         self._log(logging.WARNING, f"audit: {message} (requested by Zenoh peer {peer})")
         self._keep("audit", peer, message)
 
-    def recent(self, n: int = STATUS_EVENTS) -> list[dict[str, Any]]:
-        return list(self.events)[-n:]
 
 
 def _put(publisher: Any, name: str, payload: bytes) -> None:

@@ -7,6 +7,15 @@ next plan at its takeover time, and records every setpoint it sends. Nothing
 here decodes, solves or waits on the network: one tick is a few array
 operations and one MAVLink send.
 
+It runs in a thread of its own, not on the event loop, at a higher CPU priority
+than the rest of the service when it may (:data:`STREAM_NICE_STEP`): a tick then
+waits for no callback of the loop (a status being built, a reply, telemetry),
+only, at worst, for Python's GIL (handed over within the 1 ms switch interval).
+The loop and the stream share the commanded state under one lock; what the
+stream tells the loop (a halt, its beat) it hands over with
+``call_soon_threadsafe``. The loop's own life feeds systemd's watchdog from the
+beat, so a stuck loop is still restarted.
+
 Two promises are kept here, whatever happens elsewhere:
 
 * **No jump.** Every setpoint is checked against the one sent before it (finite,
@@ -27,6 +36,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import os
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -57,6 +68,9 @@ BRAKE_SHARE = 0.7
 LOSS_SHARE = 0.8
 #: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
 STEP_SLACK_M = 0.01
+#: The stream's thread runs this many nice levels above the service (needs
+#: CAP_SYS_NICE; without it, at the service's own priority, and status says so).
+STREAM_NICE_STEP = 5
 
 Source = Plan | Hold | Brake
 
@@ -104,6 +118,9 @@ class SetpointStream:
     ``on_halt(reason, ended)`` is called (on the event loop) when a stall or a
     refused setpoint halts the flight: ``ended`` when the stream stopped
     altogether (PX4's failsafe has the vehicle), else it brakes to a hold.
+
+    Every method that changes the commanded state takes :attr:`lock`, which the
+    stream's thread holds for a tick.
     """
 
     def __init__(self, cfg: Callable[[], Config], autopilot: Autopilot,
@@ -126,35 +143,53 @@ class SetpointStream:
         self.stalls = 0
         self.longest_stall_s = 0.0
         self.record: Callable[..., None] = lambda channel, payload: None  # flight record
-        #: set after every loop iteration (a setpoint sent, or nothing to send): other
-        #: periodic work waits for it and so runs just after a setpoint, in the
-        #: stream's idle time, not across its next deadline
+        #: set (on the event loop) after every tick (a setpoint sent, or nothing to
+        #: send): other periodic work waits for it and so runs just after a setpoint,
+        #: in the stream's idle time, not across its next deadline
         self.beat = asyncio.Event()
+        self.lock = threading.RLock()
+        #: how the stream's thread reaches the event loop (direct when it runs alone)
+        self._call: Callable[..., None] = lambda fn, *args: fn(*args)
+        self.priority: str = ""  # why the stream runs at the service's priority, if it does
 
     # ------------------------------------------------------------ commanding
     def commanded(self, now: float) -> Command:
         """The commanded state at ``now`` (the vehicle's position when idle)."""
-        if self.source is None:
-            pos = self.autopilot.telemetry.position
-            return Command(np.zeros(3) if pos is None else pos.copy())
-        return self.source.command(now)
+        with self.lock:
+            if self.source is None:
+                pos = self.autopilot.telemetry.position
+                return Command(np.zeros(3) if pos is None else pos.copy())
+            return self.source.command(now)
 
     def begin(self, position: np.ndarray, yaw_ned: float, reason: str) -> None:
         """Start streaming a hold at ``position``."""
-        self.source, self.next_plan = Hold(position.copy(), reason), None
-        self.yaw_ned = yaw_ned
-        self.halted, self.last_sent = None, None
-        self.streaming, self.started = True, time.monotonic()
+        with self.lock:
+            self.source, self.next_plan = Hold(position.copy(), reason), None
+            self.yaw_ned = yaw_ned
+            self.halted, self.last_sent = None, None
+            self.streaming, self.started = True, time.monotonic()
 
     async def stop(self) -> None:
         """Stop streaming and forget the source."""
-        self.streaming = False
-        self.source, self.next_plan = None, None
+        with self.lock:
+            self.streaming = False
+            self.source, self.next_plan = None, None
 
     def offer(self, plan: Plan) -> None:
         """Fly ``plan`` from its ``t0`` on (ignored while halted)."""
-        if self.halted is None:
-            self.next_plan = plan
+        with self.lock:
+            if self.halted is None:
+                self.next_plan = plan
+
+    def resume(self) -> None:
+        """Fly trajectories again after a halt (the ``start`` command)."""
+        with self.lock:
+            self.halted = None
+
+    def drop_next(self) -> None:
+        """Forget the plan waiting to take over."""
+        with self.lock:
+            self.next_plan = None
 
     def take_over(self, now: float) -> None:
         """Swap in the next plan at its start time, carrying the position gap (at most
@@ -176,14 +211,15 @@ class SetpointStream:
 
     def brake(self, reason: str) -> None:
         """Stop along the path being flown (or hold) and report why."""
-        now = time.monotonic()
-        self.next_plan = None
-        if isinstance(self.source, Plan):
-            self.source = brake_along(self.source, now, self._decel(), reason)
-        elif isinstance(self.source, Brake):
-            return
-        else:
-            self.source = Hold(self.commanded(now).position, reason)
+        with self.lock:
+            now = time.monotonic()
+            self.next_plan = None
+            if isinstance(self.source, Plan):
+                self.source = brake_along(self.source, now, self._decel(), reason)
+            elif isinstance(self.source, Brake):
+                return
+            else:
+                self.source = Hold(self.commanded(now).position, reason)
         self.report.warn(f"braking to a hold: {reason}")
 
     def halt(self, reason: str, now: float | None = None) -> None:
@@ -191,50 +227,104 @@ class SetpointStream:
         now is), along the path being flown (the path was checked against the map; a
         straight line off it was not), and refuse plans until the next ``begin``."""
         now = time.monotonic() if now is None else now
-        self.next_plan = None
-        self.halted = reason
-        late = now - self.last_send_time
-        if isinstance(self.source, Plan) and self.last_sent is not None:
-            brake = brake_along(self.source, self.last_send_time, self._decel(), reason)
-            self.source = replace(brake, t0=now)
-        elif isinstance(self.source, Brake):  # go on braking from where it was
-            self.source = replace(self.source, t0=self.source.t0 + late, reason=reason)
-        elif self.last_sent is not None:
-            self.source = Hold(self.last_sent.position.copy(), reason)
+        with self.lock:
+            self.next_plan = None
+            self.halted = reason
+            late = now - self.last_send_time
+            if isinstance(self.source, Plan) and self.last_sent is not None:
+                brake = brake_along(self.source, self.last_send_time, self._decel(), reason)
+                self.source = replace(brake, t0=now)
+            elif isinstance(self.source, Brake):  # go on braking from where it was
+                self.source = replace(self.source, t0=self.source.t0 + late, reason=reason)
+            elif self.last_sent is not None:
+                self.source = Hold(self.last_sent.position.copy(), reason)
         self.report.error("stream", f"{reason}: braking from the last setpoint sent to a "
                           "hold; a new 'start' is needed")
-        self.on_halt(reason, False)
+        self._call(self.on_halt, reason, False)
 
     def _end(self, reason: str) -> None:
-        self.streaming = False
-        self.source, self.next_plan = None, None
-        self.halted = reason
+        with self.lock:
+            self.streaming = False
+            self.source, self.next_plan = None, None
+            self.halted = reason
         self.report.error("stream", f"{reason}: setpoint stream stopped, PX4's offboard-loss "
                           "failsafe has the vehicle; a new 'start' is needed")
-        self.on_halt(reason, True)
+        self._call(self.on_halt, reason, True)
 
     # ------------------------------------------------------------ the loop
     async def run(self, tick: Callable[[], None] = lambda: None) -> None:
-        """Setpoints at ``rate_hz`` on absolute deadlines (no drift), while streaming."""
-        period = 1.0 / self._cfg().stream.rate_hz
+        """Run the stream in its thread until cancelled (then stop the thread); an
+        exception in the thread ends this with it (the supervisor restarts it).
+        ``tick`` runs on the event loop after every tick of the stream (systemd's
+        watchdog: fed only while the loop runs too)."""
         loop = asyncio.get_running_loop()
-        deadline = loop.time()
+        ended: asyncio.Future[None] = loop.create_future()
+        stop = threading.Event()
+
+        def beat() -> None:
+            tick()
+            self.beat.set()
+
+        def settle(exc: BaseException | None) -> None:
+            if ended.done():
+                return
+            if exc is None:
+                ended.set_result(None)
+            else:
+                ended.set_exception(exc)
+
+        def main() -> None:
+            try:
+                self._raise_priority()
+                self._loop(stop, lambda: loop.call_soon_threadsafe(beat))
+            except BaseException as exc:  # noqa: BLE001 - handed to the supervisor
+                loop.call_soon_threadsafe(settle, exc)
+            else:
+                loop.call_soon_threadsafe(settle, None)
+
+        self._call = loop.call_soon_threadsafe
+        thread = threading.Thread(target=main, name="setpoint-stream", daemon=True)
+        thread.start()
+        try:
+            await ended
+        finally:
+            stop.set()
+            thread.join(1.0)  # it sees ``stop`` within one period
+
+    def _raise_priority(self) -> None:
+        """This thread :data:`STREAM_NICE_STEP` nice levels above the service."""
+        here = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's (Linux: per thread)
+        want = max(here - STREAM_NICE_STEP, -20)
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), want)
+            self.priority = ""
+        except OSError as exc:
+            self.priority = (f"setpoint stream at the service's priority (nice {here}): "
+                             f"cannot set nice {want} ({exc.strerror}; grant CAP_SYS_NICE)")
+            self._call(self.report.warn, self.priority)
+
+    def _loop(self, stop: threading.Event, beat: Callable[[], None]) -> None:
+        """Setpoints at ``rate_hz`` on absolute deadlines (no drift), while streaming;
+        ``beat()`` after every tick."""
+        period = 1.0 / self._cfg().stream.rate_hz
+        deadline = time.monotonic()
         self.last_tick = time.monotonic()
-        while True:
+        while not stop.is_set():
             deadline += period
-            delay = deadline - loop.time()
+            delay = deadline - time.monotonic()
             if delay < -5 * period:  # fell far behind (stalled): resynchronise
-                deadline = loop.time()
-            await asyncio.sleep(max(delay, 0.0))
+                deadline = time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
             now = time.monotonic()
             stall, self.last_tick = now - self.last_tick, now
-            tick()
-            if self.streaming:
-                if stall > self._cfg().stream.stall_budget_s:
-                    self._stalled(stall, now)
+            with self.lock:
                 if self.streaming:
-                    self._step(now)
-            self.beat.set()
+                    if stall > self._cfg().stream.stall_budget_s:
+                        self._stalled(stall, now)
+                    if self.streaming:
+                        self._step(now)
+            beat()
 
     def loss_timeout(self) -> float:
         """PX4's offboard-loss timeout: the smaller of the configured and PX4's own."""
@@ -255,7 +345,8 @@ class SetpointStream:
         """The reported ``position`` minus the nearest of the setpoints sent in the
         last ``safety.tracking_lag_s`` (PX4's position loop lags its setpoint by up to
         half a second at 2-3 m/s: a lag is no divergence). None if none was sent."""
-        recent = self.sent.since(now - self._cfg().safety.tracking_lag_s)
+        with self.lock:
+            recent = self.sent.since(now - self._cfg().safety.tracking_lag_s)
         if not len(recent):
             return None
         d = position - recent
@@ -347,7 +438,8 @@ class SetpointStream:
     # ------------------------------------------------------------ figures
     def jitter_p99_ms(self) -> float | None:
         """99th percentile of |period - nominal| of the setpoint stream (ms)."""
-        t = np.asarray(self.send_times)
+        with self.lock:
+            t = np.asarray(self.send_times)
         if len(t) < 20:
             return None
         dt = np.diff(t)
