@@ -8,6 +8,7 @@ import asyncio
 import json
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -210,3 +211,28 @@ def test_workers_run_below_the_service_but_not_below_ordinary_work():
             w.close()
 
     assert asyncio.run(main()) == worker_nice(_nice())
+
+
+def test_the_stream_ticks_in_its_own_thread_above_the_service_and_stops_when_cancelled():
+    s = _stream([0.0, 0.0, 1.0])
+    s.streaming = False  # ticking, nothing to send
+    ticks = []
+
+    async def main():
+        task = asyncio.ensure_future(s.run(lambda: ticks.append(threading.get_ident())))
+        while len(ticks) < 3:
+            await asyncio.wait_for(s.beat.wait(), 5.0)
+            s.beat.clear()
+        thread = next(t for t in threading.enumerate() if t.name == "setpoint-stream")
+        nice = os.getpriority(os.PRIO_PROCESS, thread.native_id)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        return thread, nice
+
+    thread, nice = asyncio.run(main())
+    here = os.getpriority(os.PRIO_PROCESS, 0)
+    # the beat (and the watchdog with it) comes on the event loop, the stream's own thread
+    # ends with its task
+    assert set(ticks) == {threading.get_ident()} and not thread.is_alive()
+    assert nice == max(here - 5, -20) or "cannot set nice" in s.priority
