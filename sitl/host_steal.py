@@ -32,6 +32,10 @@ ACCOUNTING_DELAY_S = 0.02
 #: the counters round down to whole ticks, and a task asleep on the CPU taken may
 #: be woken on the other one a little before the first runs again (s).
 OVERLAP_SLACK_S = 2.0 / CLOCK_TICKS
+#: Only the host's longer takings are charged (it takes about 100 ms at a time when
+#: the machine is busy): a tick or two of steal cannot be told from the stream's
+#: own lateness, and the stream's p99 budget must hold with it.
+MIN_EVENT_S = 0.05
 
 
 def read_steal() -> np.ndarray:
@@ -71,18 +75,21 @@ class HostSteal:
         return out
 
     def excuse(self, gaps: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """How much of each gap the host took. Every event, the largest first, is
-        charged to the largest gap not yet charged whose interval ``a[k]`` to
-        ``b[k]`` (host monotonic s) meets it, and only if that gap is about as long
-        as the event (:data:`OVERLAP_SLACK_S`): a stream whose CPU was taken away
-        for so long has such a gap; if none has, the host took another CPU. One event per gap (the
-        stream runs on one CPU at a time), and never more than the gap's excess
-        over the stream's usual spacing (its median gap)."""
+        """How much of each gap the host took. Every event of at least
+        :data:`MIN_EVENT_S`, the largest first, is charged to the largest gap not yet
+        charged whose interval ``a[k]`` to ``b[k]`` (host monotonic s) meets it, and
+        only if that gap is about as long as the event (:data:`OVERLAP_SLACK_S`): a
+        stream whose CPU was taken away for so long has such a gap; if none has,
+        the host took another CPU. One event per gap (the stream runs on one CPU at
+        a time), and never more than the gap's excess over the stream's usual
+        spacing (its median gap)."""
         charged = np.zeros(len(gaps))
         if not len(gaps):
             return charged
         usual = float(np.median(gaps))
         for t0, t1, amount in sorted(self.events(), key=lambda e: -e[2]):
+            if amount < MIN_EVENT_S:
+                break
             k = np.flatnonzero((b >= t0) & (a <= t1) & (charged == 0)
                                & (gaps >= amount - OVERLAP_SLACK_S))
             if len(k):

@@ -89,3 +89,9 @@ def test_a_step_after_a_gap_is_excused_up_to_the_stall_budget_only():
     assert late.jumps == 1 and abs(late.largest_jump_m - 1.0) < 1e-9
     # a tighter budget excuses less
     assert check_stream(record(stream_with_gap(0.2), speed=2.0), 2.2, max_step_dt=0.1).jumps
+
+
+def test_a_tick_of_steal_excuses_nothing():
+    sent = stream_with_gap(0.03)
+    figures = check_stream(record(sent), 2.0, host_steal=steal_at(sent[100] + 0.004, 0.01))
+    assert figures.host_steal_s == 0.0 and abs(figures.max_gap_s - 0.03) < 1e-9
