@@ -49,6 +49,7 @@ from companion import messages as msgs
 from companion.autopilot import Autopilot
 from companion.config import Config
 from companion.frames import heading_ned_deg
+from companion.lateness import TickClock
 from companion.plan import (
     Brake,
     Command,
@@ -71,6 +72,9 @@ STEP_SLACK_M = 0.01
 #: The stream's thread runs this many nice levels above the service (needs
 #: CAP_SYS_NICE; without it, at the service's own priority, and status says so).
 STREAM_NICE_STEP = 5
+#: A tick this late (s) is logged with the kernel's account of why
+#: (:mod:`companion.lateness`).
+LATE_TICK_S = 0.06
 
 Source = Plan | Hold | Brake
 
@@ -151,6 +155,8 @@ class SetpointStream:
         #: how the stream's thread reaches the event loop (direct when it runs alone)
         self._call: Callable[..., None] = lambda fn, *args: fn(*args)
         self.priority: str = ""  # why the stream runs at the service's priority, if it does
+        #: the kernel's account of the stream thread's ticks (why a tick came late)
+        self.clock = TickClock()
 
     # ------------------------------------------------------------ commanding
     def commanded(self, now: float) -> Command:
@@ -309,6 +315,7 @@ class SetpointStream:
         period = 1.0 / self._cfg().stream.rate_hz
         deadline = time.monotonic()
         self.last_tick = time.monotonic()
+        self.clock.tick()
         while not stop.is_set():
             deadline += period
             delay = deadline - time.monotonic()
@@ -318,6 +325,10 @@ class SetpointStream:
                 time.sleep(delay)
             now = time.monotonic()
             stall, self.last_tick = now - self.last_tick, now
+            self.clock.tick()
+            if stall > LATE_TICK_S:
+                log.warning("setpoint stream late: %.0f ms since the last tick (%s)",
+                            1e3 * stall, self.clock.explain() or "no kernel figures")
             with self.lock:
                 if self.streaming:
                     if stall > self._cfg().stream.stall_budget_s:
@@ -335,7 +346,8 @@ class SetpointStream:
     def _stalled(self, stall: float, now: float) -> None:
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, stall)
-        what = f"the service was stalled for {stall:.2f} s"
+        why = self.clock.explain()
+        what = f"the service was stalled for {stall:.2f} s" + (f" ({why})" if why else "")
         if stall >= LOSS_SHARE * self.loss_timeout():
             self._end(f"{what} (PX4's offboard-loss timeout is {self.loss_timeout():.2f} s)")
         elif self.halted is None or not isinstance(self.source, Hold):

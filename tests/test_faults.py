@@ -45,7 +45,10 @@ def run(flight: Flight, scenario):
 def assert_stream_ok(flight: Flight, report, window=None) -> None:
     figures = flight.figures(window, report.setpoints)
     print("vehicle side:", figures.summary())
-    assert not figures.problems(), figures.summary()
+    # the service's own account of its late ticks (the kernel's figures), to tell why
+    late = [ln for ln in getattr(flight, "log", "").splitlines()
+            if "setpoint stream late" in ln or "stalled for" in ln]
+    assert not figures.problems(), "\n".join([figures.summary(), *late[-10:]])
     assert not report.collisions
 
 
