@@ -226,9 +226,15 @@ def test_e2e_mavsdk_offboard_tracking_loss_return_and_back_to_offboard():
 
             assert await wait_until(lambda: mode_is(FlightMode.OFFBOARD), 1.5)
             loop = asyncio.get_running_loop()
-            t0 = loop.time()
             duration = 18.75 / 3.0
-            while (t := loop.time() - t0) < duration + 4.0:
+            # the trajectory's clock advances with the loop's, but by at most two
+            # periods per setpoint: a stall of this test's process (a busy machine)
+            # must not make the setpoints leap ahead (what the tracking measures is
+            # the vehicle, not this client)
+            t, last = 0.0, loop.time()
+            while t < duration + 4.0:
+                now = loop.time()
+                t, last = t + min(now - last, 0.04), now
                 p, v, a = min_jerk(t, duration, 10.0)
                 await link.offboard.set_position_velocity_acceleration_ned(
                     PositionNedYaw(n0 + p, e0, d0, 0.0),

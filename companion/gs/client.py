@@ -165,9 +165,16 @@ class GroundStation:
 
     # ------------------------------------------------------------ sending
     def publish(self, name: str, obj: dict[str, Any]) -> None:
-        """Put a JSON message on ``<prefix>/<vehicle>/<name>`` (trajectory, map)."""
+        """Put a JSON message on ``<prefix>/<vehicle>/<name>`` (trajectory, map).
+
+        With congestion control *block*, not Zenoh's default for a put (*drop*): a
+        map of a megabyte goes out in many fragments, and with *drop* a full send
+        queue (a busy machine) loses it without a word on either side, as a map once
+        was in a test on a loaded machine. Waiting for room is what an operator wants
+        of a map or a trajectory."""
         self.session.put(self.key(name), json.dumps(obj, allow_nan=False).encode(),
-                         encoding=zenoh.Encoding.APPLICATION_JSON)
+                         encoding=zenoh.Encoding.APPLICATION_JSON,
+                         congestion_control=zenoh.CongestionControl.BLOCK)
 
     def send_trajectory(self, obj: dict[str, Any]) -> None:
         self.publish("trajectory", obj)
@@ -224,8 +231,12 @@ class GroundStation:
             if s and self.status_count > since and predicate(s):
                 return s
             await asyncio.sleep(0.02)
-        raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}; status: "
-                           f"{json.dumps(self.status)[:600]}")
+        s = self.status or {}
+        said = [f"{e.get('source')}: {e.get('message')}" if isinstance(e, dict) else e
+                for e in s.get("events", [])[-5:]]
+        raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}; state "
+                           f"{s.get('state')!r}, last words on status: {said}; status: "
+                           f"{json.dumps(s)[:400]}")
 
     def wait_status(self, timeout_s: float) -> dict[str, Any]:
         """The newest status, waiting up to ``timeout_s`` for the first (blocking)."""
