@@ -85,12 +85,15 @@ class StreamFigures:
 
 
 def _gaps(t: np.ndarray, pauses: Sequence[tuple[float, float]], wall: np.ndarray,
-          host_steal: HostSteal) -> tuple[np.ndarray, np.ndarray]:
+          host_steal: HostSteal, on_host: np.ndarray | None = None,
+          ) -> tuple[np.ndarray, np.ndarray]:
     """Gaps of ``t`` net of what the host took within them, leaving out those that
     span a pause (wall-clock intervals in which the sender was stopped on purpose);
-    and what the host took."""
+    and what the host took. ``on_host``: the times ``t`` on the host's monotonic
+    clock, where the host's takings are looked for (default ``wall``)."""
     dt = np.diff(t)
-    stolen = host_steal.excuse(dt, wall[:-1], wall[1:])
+    on_host = wall if on_host is None else on_host
+    stolen = host_steal.excuse(dt, on_host[:-1], on_host[1:])
     keep = np.ones(len(dt), dtype=bool)
     for a, b in pauses:
         keep &= ~((wall[:-1] <= b) & (wall[1:] >= a))
@@ -130,7 +133,11 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
     n = len(wall)
     if n < 2:
         return StreamFigures(n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0, int(n - finite.sum()))
-    gaps, stolen = _gaps(sent, pauses, wall, host_steal or HostSteal())
+    # The send gaps are looked up on the sender's clock, put on the host's (the
+    # arrival times would not do: a receiver held up by the host as well takes in
+    # the setpoint before the gap late, and the gap then seems to start after it).
+    sent_on_host = sent + float(np.median(wall - sent))
+    gaps, stolen = _gaps(sent, pauses, wall, host_steal or HostSteal(), sent_on_host)
     arrivals, _ = _gaps(wall, pauses, wall, host_steal or HostSteal())
     dt = np.clip(np.diff(sent), 0.0, max_step_dt) + STAMP_RESOLUTION_S
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)

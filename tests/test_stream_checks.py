@@ -95,3 +95,15 @@ def test_a_tick_of_steal_excuses_nothing():
     sent = stream_with_gap(0.03)
     figures = check_stream(record(sent), 2.0, host_steal=steal_at(sent[100] + 0.004, 0.01))
     assert figures.host_steal_s == 0.0 and abs(figures.max_gap_s - 0.03) < 1e-9
+
+
+def test_a_gap_is_charged_on_the_senders_clock_when_the_receiver_was_held_up_too():
+    """The host took the CPU of both the stream and the vehicle's receiver: the
+    setpoint before the gap was taken in 110 ms late, after the host's time was
+    over; the send gap (137 ms: 100 taken, 36 waiting for a CPU) still holds it."""
+    sent = stream_with_gap(0.137)
+    rec = record(sent)
+    rec["wall_time"][99] = sent[99] + 0.112
+    figures = check_stream(rec, 2.0, host_steal=steal_at(sent[99] + 0.105, 0.1))
+    assert figures.host_steal_gaps == 1 and abs(figures.host_steal_s - 0.1) < 1e-9
+    assert abs(figures.max_gap_s - 0.037) < 1e-9 and not figures.problems(), figures.summary()
