@@ -291,7 +291,10 @@ def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
         "braking_model": braking,
         "v_max_m_s": speed,
         "max_speed_m_s": figures["max_speed_m_s"],
+        "max_commanded_speed_m_s": figures["max_commanded_speed_m_s"],
         "max_acceleration_m_s2": figures["max_acceleration_m_s2"],
+        "max_acceleration_per_axis_m_s2": figures["max_acceleration_per_axis_m_s2"],
+        "a_max_m_s2": list(cfg.limits.a_max),
         "max_tracking_error_m": figures["max_tracking_error_m"],
         "closest_approach_m": round(closest, 3),
         "collisions": collisions,
@@ -308,9 +311,10 @@ def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
         print(f"  {r['id']}: {r['status']}, {r['input_duration']:.2f} s as planned -> "
               f"{r['duration']:.2f} s re-timed, {len(r['braking_zones'])} braking zone(s), "
               f"solve {1e3 * (r['solver'] or {}).get('wall_time', 0):.0f} ms")
-    print(f"max speed {summary['max_speed_m_s']} m/s (limit {speed}), max commanded "
-          f"acceleration {summary['max_acceleration_m_s2']} m/s^2, max tracking error "
-          f"{summary['max_tracking_error_m']} m")
+    print(f"max speed {summary['max_speed_m_s']} m/s flown, "
+          f"{summary['max_commanded_speed_m_s']} m/s commanded (limit {speed}); max commanded "
+          f"acceleration per axis {summary['max_acceleration_per_axis_m_s2']} m/s^2 (limits "
+          f"{summary['a_max_m_s2']}); max tracking error {summary['max_tracking_error_m']} m")
     print(f"closest approach {summary['closest_approach_m']} m, collisions "
           f"{summary['collisions']}, setpoint jitter p99 {summary['setpoint_jitter_p99_ms']} ms")
     print(f"wrote {out / 'summary.json'}, {png} and the flight record "

@@ -51,7 +51,8 @@ def trajectory_to_enu(traj: Trajectory, frame: str) -> Trajectory:
     if frame != "NED":
         raise ValueError(f"unknown frame {frame!r}")
     if isinstance(traj, Window):
-        return replace(traj, base=trajectory_to_enu(traj.base, frame))
+        offset = None if traj.offset is None else ned_to_enu(traj.offset)
+        return replace(traj, base=trajectory_to_enu(traj.base, frame), offset=offset)
     if isinstance(traj, BSplineTrajectory):
         return replace(traj, control_points=ned_to_enu(traj.control_points))
     if isinstance(traj, PolynomialTrajectory):

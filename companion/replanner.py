@@ -145,8 +145,9 @@ class Replanner:
                              f"uniformly slowed fallback")
         if incoming is not self.latest or not self.flying():
             return  # superseded, or not flying: the result was published, nothing to fly
-        if take is None:  # offboard began while we solved: start from the hold
-            t_take = time.monotonic()
+        if take is None:  # offboard began while we solved: join it onto the hold first
+            self._wake.set()
+            return
         # The plan's time 0 is the predicted takeover time even when the solve came in
         # later: the new path was joined where the old command is at t_take, so both
         # have moved on alike since (the stream refuses a takeover whose gap is too big)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from companion.plan import blend_time
 from rota.trajectory import Trajectory, Window
 
 
@@ -68,7 +69,12 @@ def along_path(traj: Trajectory, velocity: np.ndarray, v_max: float) -> np.ndarr
 
 def join(traj: Trajectory, position: np.ndarray, velocity: np.ndarray, tolerance: float,
          v_max: float) -> tuple[Trajectory, np.ndarray]:
-    """The part of ``traj`` to fly from the commanded state, and its start velocity."""
+    """The part of ``traj`` to fly from the commanded state, and its start velocity.
+
+    The part begins exactly at ``position``: the gap to the path (at most
+    ``tolerance``) is carried as an offset that fades out along the path
+    (:class:`rota.trajectory.Window`), so the re-time bounds speed, acceleration
+    and the chance constraints of the path as it will be flown, blend included."""
     tau0 = nearest_tau(traj, position, tolerance)
     gap = float(np.linalg.norm(traj.position(tau0)[0] - position))
     if gap > tolerance:
@@ -76,6 +82,10 @@ def join(traj: Trajectory, position: np.ndarray, velocity: np.ndarray, tolerance
                           f"(tolerance {tolerance} m)")
     if tau0 >= traj.domain[1] - 1e-6:
         raise StitchError("the vehicle is already past its end")
-    if tau0 > traj.domain[0]:
+    offset = np.asarray(position, dtype=float) - traj.position(tau0)[0]
+    if gap > 1e-9:  # begin exactly at the command; the re-time bounds the blend too
+        blend = min(blend_time(gap), traj.domain[1] - tau0)
+        traj = Window(base=traj, start=tau0, offset=offset, blend=blend)
+    elif tau0 > traj.domain[0]:
         traj = Window(base=traj, start=tau0)
     return traj, along_path(traj, velocity, v_max)

@@ -103,11 +103,14 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
         if isinstance(exc, InputError):
             raise
         raise InputError("(trajectory)", str(exc)) from None
-    if d.get("start") is not None:
-        start = d["start"]
-        if isinstance(start, bool) or not isinstance(start, int | float):
-            raise InputError("start", f"must be a number (trajectory time), got {start!r}")
-        traj = Window(base=traj, start=float(start))
+    if d.get("start") is not None or d.get("start_offset") is not None:
+        start = d.get("start", traj.domain[0])
+        blend = d.get("start_blend", 0.0)
+        for key, value in (("start", start), ("start_blend", blend)):
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise InputError(key, f"must be a number (trajectory time), got {value!r}")
+        traj = Window(base=traj, start=float(start), offset=d.get("start_offset"),
+                      blend=float(blend))
     return TrajectoryMessage(traj, id=_optional_str(d, "id", ""), frame=frame,
                              stamp=None if stamp is None else float(stamp))
 
@@ -128,6 +131,9 @@ def trajectory_to_dict(msg: TrajectoryMessage) -> dict[str, Any]:
         if traj.end != traj.base.domain[1]:  # type: ignore[union-attr]
             raise TypeError("only windows that run to the end of the trajectory serialise")
         out["start"] = traj.start
+        if traj.offset is not None:
+            out["start_offset"] = traj.offset.tolist()
+            out["start_blend"] = traj.blend
         traj = traj.base
     if msg.stamp is not None:
         out["stamp"] = msg.stamp

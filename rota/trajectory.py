@@ -16,6 +16,7 @@ clamps ``tau`` to the trajectory's domain (no extrapolation).
 from __future__ import annotations
 
 import copy as _copy
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -341,14 +342,39 @@ class SampledTrajectory(Trajectory):
         return float(self.t[0]), float(self.t[-1])
 
 
+#: The quintic smootherstep fading from 1 to 0 on ``x in [0, 1]``, ascending powers.
+_FADE = np.array([1.0, 0.0, 0.0, -10.0, 15.0, -6.0])
+
+
+def _taylor_shift(coefs: FloatArray, delta: FloatArray) -> FloatArray:
+    """Coefficients (ascending powers, axis 1) of the same polynomials re-expanded
+    about a point ``delta`` later: ``coefs`` (m, k + 1, ...) and ``delta`` (m,)."""
+    k = coefs.shape[1] - 1
+    r = np.arange(k + 1)
+    binom = np.array([[math.comb(int(b), int(a)) for b in r] for a in r], dtype=float)
+    power = np.clip(r[None, :] - r[:, None], 0, None)  # (s, r): r - s where r >= s
+    m = binom[None] * delta[:, None, None] ** power[None]  # (m, s, r)
+    return np.einsum("msr,mr...->ms...", m, coefs)
+
+
 @dataclass(frozen=True)
 class Window(Trajectory):
     """The part of ``base`` from trajectory time ``start`` (to ``end``, default its
-    end): how a replan continues from the point the vehicle has reached."""
+    end): how a replan continues from the point the vehicle has reached.
+
+    ``offset`` (ENU, m), if given, shifts the path at ``start`` so that it begins
+    exactly at the vehicle's commanded position; the shift fades out along a
+    quintic smootherstep over ``blend`` of trajectory time (its velocity and
+    acceleration start and end at zero). The re-timer then re-times the path as it
+    will be flown, blend included: limits, braking zones and chance constraints
+    hold for it too.
+    """
 
     base: Trajectory | None = None
     start: float = 0.0
     end: float | None = None
+    offset: FloatArray | None = None
+    blend: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.base, Trajectory):
@@ -361,19 +387,79 @@ class Window(Trajectory):
                              f"before the end, got {self.start!r}")
         object.__setattr__(self, "start", start)
         object.__setattr__(self, "end", end)
+        if self.offset is None:
+            return
+        offset = np.array(_finite_array(self.offset, "start_offset", 1, 3))
+        offset.setflags(write=False)
+        blend = float(self.blend)
+        if not (np.isfinite(blend) and 0.0 < blend <= end - start + 1e-12):
+            raise InputError("start_blend", f"must be positive and at most the window's "
+                             f"length {end - start:.6g}, got {self.blend!r}")
+        object.__setattr__(self, "offset", offset)
+        object.__setattr__(self, "blend", min(blend, end - start))
 
     @property
     def domain(self) -> tuple[float, float]:
         return self.start, float(self.end)  # type: ignore[arg-type]
 
+    def _fade(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The shift and its first two derivatives at trajectory times ``x``, (n, 3)."""
+        u = np.clip((x - self.start) / self.blend, 0.0, 1.0)
+        w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
+        dw = -30.0 * u * u * (1.0 - u) ** 2 / self.blend
+        ddw = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / self.blend**2
+        off = self.offset[None, :]  # type: ignore[index]
+        return w[:, None] * off, dw[:, None] * off, ddw[:, None] * off
+
     def evaluate(self, tau: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
-        return self.base.evaluate(x)  # type: ignore[union-attr]
+        p, d1, d2 = self.base.evaluate(x)  # type: ignore[union-attr]
+        if self.offset is None:
+            return p, d1, d2
+        f, df, ddf = self._fade(x)
+        return p + f, d1 + df, d2 + ddf
 
     def position(self, tau: ArrayLike) -> FloatArray:
         x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), *self.domain)
-        return self.base.position(x)  # type: ignore[union-attr]
+        p = self.base.position(x)  # type: ignore[union-attr]
+        return p if self.offset is None else p + self._fade(x)[0]
 
     @property
     def pieces(self) -> tuple[FloatArray, FloatArray]:
-        return self.base.pieces  # type: ignore[union-attr]
+        if self.offset is None:
+            return self.base.pieces  # type: ignore[union-attr]
+        cached = self.__dict__.get("_pieces")
+        if cached is None:
+            cached = self._faded_pieces()
+            object.__setattr__(self, "_pieces", cached)
+        return cached
+
+    def _faded_pieces(self) -> tuple[FloatArray, FloatArray]:
+        """The base's pieces cut at the blend's ends, with the blend's quintic added
+        to those between them and the full offset to those before (made once and
+        kept)."""
+        breaks, coefs = self.base.pieces  # type: ignore[union-attr]
+        t0, t1 = self.start, self.start + self.blend
+        cuts = np.array([c for c in (t0, t1) if breaks[0] < c < breaks[-1]
+                         and not np.any(np.abs(breaks - c) <= 1e-12)])
+        new = np.sort(np.concatenate([breaks, cuts]))
+        parent = np.clip(np.searchsorted(breaks, new[:-1], side="right") - 1, 0,
+                         len(coefs) - 1)
+        k = max(coefs.shape[1], len(_FADE))
+        padded = np.zeros((len(coefs), k, 3))
+        padded[:, :coefs.shape[1]] = coefs
+        out = _taylor_shift(padded[parent], new[:-1] - breaks[parent])
+        before = new[:-1] < t0 - 1e-12  # (outside the domain, as evaluate() has it)
+        out[before, 0] += self.offset  # type: ignore[index]
+        inside = ~before & (new[:-1] < t1 - 1e-12)
+        if np.any(inside):
+            x0 = (new[:-1][inside] - t0) / self.blend
+            fade = np.zeros((len(x0), k))
+            fade[:, :len(_FADE)] = _FADE
+            q = _taylor_shift(fade, x0) / self.blend ** np.arange(k)  # powers of tau - c
+            out[inside] += q[:, :, None] * self.offset[None, None, :]  # type: ignore[index]
+        new = np.ascontiguousarray(new)
+        out = np.ascontiguousarray(out)
+        new.setflags(write=False)
+        out.setflags(write=False)
+        return new, out

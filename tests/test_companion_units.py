@@ -218,6 +218,35 @@ def test_nearest_tau_joins_the_first_pass():
     assert tau == pytest.approx(1.0, abs=0.05)
 
 
+def test_a_joined_replan_starts_at_the_command_and_keeps_the_speed_limit():
+    """A replan that passes 0.6 m beside the commanded position of a vehicle
+    cruising at v_max: the joined path starts exactly at the command, so nothing is
+    left for the stream to blend in, and its re-time holds v_max and a_max for the
+    path as flown (a blend added on top of a plan at v_max would exceed it)."""
+    from companion.stitch import join
+    from rota import BSplineTrajectory
+
+    x = np.arange(-2.0, 60.0) * 0.2  # a straight line along x, 2 m/s as planned
+    traj = BSplineTrajectory(control_points=np.column_stack([x, 0 * x, 0 * x + 2]),
+                             knot_span=0.1)
+    here, v = np.array([3.0, 0.6, 2.0]), np.array([2.0, 0.0, 0.0])
+    joined, v0 = join(traj, here, v, tolerance=1.0, v_max=2.0)
+    np.testing.assert_allclose(joined.position(joined.domain[0])[0], here, atol=1e-12)
+    limits = Limits(v_max=2.0, a_max=np.array([2.0, 2.0, 1.5]))
+    result = retime(RetimeInput(trajectory=joined, limits=limits, dtau=0.05,
+                                start_velocity=v0))
+    assert result.status == "optimal", result.message
+    plan = Plan("p", result, t0=0.0)
+    t = np.arange(0.0, result.duration, 0.002)
+    cmds = [plan.command(x) for x in t]
+    np.testing.assert_allclose(cmds[0].position, here, atol=1e-9)
+    speed = np.linalg.norm([c.velocity for c in cmds], axis=1)
+    acc = np.abs([c.acceleration for c in cmds]).max(axis=0)
+    assert speed.max() <= 2.0 * 1.001 and np.all(acc <= np.array(limits.a_max) * 1.01), (speed.max(), acc)
+    lateral = np.array([c.position[1] for c in cmds])
+    assert lateral[0] == pytest.approx(0.6) and abs(lateral[-1]) < 1e-9  # back on the path
+
+
 def test_sd_notify_never_blocks_when_nobody_reads(tmp_path, monkeypatch):
     """A full notification socket (a hung systemd) must not stall the service."""
     import socket

@@ -243,5 +243,10 @@ def test_the_flight_record_replays(live):
     figures = json.loads(r.stdout.rsplit("\nplot:", 1)[0])
     assert figures["plans_flown"] == ["plan-0"] and figures["setpoints"] > 300
     assert 1.0 < figures["max_speed_m_s"] < 3.0 and figures["max_tracking_error_m"] < 1.5
+    # what was commanded stays inside the file's envelope (v_max 2, a_max per axis
+    # [2, 2, 1.5]), within the re-timer's 1 % between check points
+    assert figures["max_commanded_speed_m_s"] <= 2.0 * 1.01
+    assert all(a <= lim * 1.01 for a, lim in
+               zip(figures["max_acceleration_per_axis_m_s2"], (2.0, 2.0, 1.5)))
     assert out.stat().st_size > 50_000
     shutil.rmtree(live.record_dir)

@@ -43,3 +43,49 @@ def test_polynomial_and_sampled_pieces_match_scipy() -> None:
     t = np.cumsum(rng.uniform(0.001, 0.5, 20))
     _same(SampledTrajectory(t=t, p=rng.normal(size=(20, 3))))
     _same(SampledTrajectory(t=t, p=rng.normal(size=(20, 3)), v=rng.normal(size=(20, 3))))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_window_with_a_start_offset_has_the_pieces_of_its_blend(seed: int) -> None:
+    """A replan joined onto the command: shifted at its start, the shift fading out
+    along the path. Its compiled pieces (what ROTA re-times) are the path it says it
+    is, wherever the blend's ends fall (on a knot, between knots, at the end)."""
+    from rota.schema import TrajectoryMessage, trajectory_from_dict, trajectory_to_dict
+    from rota.trajectory import Window
+    from tests.strategies import bspline, polynomial, sampled
+
+    rng = np.random.default_rng(seed)
+    base = (bspline(seed, 8, 0.1), polynomial(seed, 6, 0.7),
+            sampled(seed, 9, 0.4, seed % 2 == 1))[seed % 3]
+    t0, t1 = base.domain
+    start = float(rng.choice([t0, t0 + rng.uniform(0, 0.5) * (t1 - t0),
+                              base.edges[len(base.edges) // 2]]))
+    blend = float(rng.choice([rng.uniform(0.05, 0.5) * (t1 - start), t1 - start]))
+    offset = rng.normal(size=3) * 0.4
+    win = Window(base=base, start=start, offset=offset, blend=blend)
+    _same(win)
+    np.testing.assert_allclose(win.position(start)[0], base.position(start)[0] + offset,
+                               atol=1e-12)
+    p, d1, d2 = win.evaluate([start])  # the shift adds no velocity or acceleration there
+    _, b1, b2 = base.evaluate([start])
+    np.testing.assert_allclose(np.vstack([d1, d2]), np.vstack([b1, b2]), atol=1e-9)
+    after = np.linspace(start + blend, t1, 7)  # and nothing after the blend
+    np.testing.assert_allclose(win.position(after), base.position(after), atol=1e-12)
+    back = trajectory_from_dict(trajectory_to_dict(TrajectoryMessage(win))).trajectory
+    np.testing.assert_allclose(back.position(np.linspace(start, t1, 50)),
+                               win.position(np.linspace(start, t1, 50)), atol=1e-12)
+
+
+def test_a_start_offset_must_be_three_finite_numbers_and_fade_within_the_path() -> None:
+    from rota.errors import InputError
+    from rota.trajectory import Window
+    from tests.strategies import bspline
+
+    base = bspline(1, 6, 0.2)
+    t0, t1 = base.domain
+    for offset, blend, words in (([0.1, 0.2], 0.5, "start_offset"),
+                                 ([0.1, np.nan, 0.0], 0.5, "start_offset[1]"),
+                                 ([0.1, 0.2, 0.0], 0.0, "start_blend"),
+                                 ([0.1, 0.2, 0.0], t1 - t0 + 1.0, "start_blend")):
+        with pytest.raises(InputError, match=words.replace("[", r"\[")):
+            Window(base=base, start=t0, offset=offset, blend=blend)

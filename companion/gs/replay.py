@@ -117,8 +117,9 @@ def load(paths: Iterable[str | Path]) -> Flight:
 
 
 def stats(f: Flight) -> dict[str, Any]:
-    """Figures of a flight: maxima of the reported speed, the commanded
-    acceleration and the tracking error; plans and braking zones flown."""
+    """Figures of a flight: maxima of the reported speed, the commanded speed,
+    the commanded acceleration (its norm, and per axis, which is what the limits
+    ``a_max`` bound) and the tracking error; plans and braking zones flown."""
 
     def top(x: np.ndarray) -> float | None:
         x = x[np.isfinite(x)]
@@ -129,6 +130,8 @@ def stats(f: Flight) -> dict[str, Any]:
         "max_speed_m_s": top(np.linalg.norm(f.velocity, axis=1)) if len(f.velocity) else None,
         "max_commanded_speed_m_s": top(np.linalg.norm(f.sp_v, axis=1)) if len(f.sp_v) else None,
         "max_acceleration_m_s2": top(np.linalg.norm(f.sp_a, axis=1)) if len(f.sp_a) else None,
+        "max_acceleration_per_axis_m_s2": ([top(np.abs(f.sp_a[:, k])) for k in range(3)]
+                                           if len(f.sp_a) else None),
         "max_tracking_error_m": top(f.tracking_error),
         "plans_flown": [p[0] for p in plans],
         "braking_zones_flown": sum(len(r.get("braking_zones", [])) for _, _, r in plans),
