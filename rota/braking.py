@@ -213,8 +213,9 @@ def zones_from(t: FloatArray, mask: BoolArray, starts: NDArray[np.int64],
     """The zones of the braking points ``mask`` (runs ``starts`` to ``ends``, both
     inclusive): raw intervals, refined ones (Alg. 1 line 17) and their mask."""
     n = t.shape[0]
-    raw = tuple((float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True))
-    duration = float(t[-1] - t[0])
+    tl = t.tolist()
+    raw = tuple((tl[a], tl[b]) for a, b in zip(starts.tolist(), ends.tolist(), strict=True))
+    duration = tl[-1] - tl[0]
     min_iv = (
         min(MIN_INTERVAL_RATIO * duration, MIN_INTERVAL_CAP)
         if params.min_interval is None
@@ -227,8 +228,11 @@ def zones_from(t: FloatArray, mask: BoolArray, starts: NDArray[np.int64],
     )
     refined = refine_intervals(raw, min_iv, gap)
     refined_mask = np.zeros(n, dtype=bool)
-    for a, b in refined:
-        refined_mask[np.searchsorted(t, a):np.searchsorted(t, b, side="right")] = True
+    if refined:
+        # samples from the first at or after a zone's start to the last at or before its end
+        cuts = np.searchsorted(t, refined).tolist()
+        for (_, end), (i, j) in zip(refined, cuts, strict=True):
+            refined_mask[i:j + (j < n and tl[j] == end)] = True
     for arr in (mask, refined_mask, dist, obst):
         arr.setflags(write=False)
     return BrakingZones(mask, refined, refined_mask, obst, dist, raw)

@@ -368,10 +368,14 @@ def kernel_args(model: UncertaintyModel, params: ChanceParams) -> tuple:
     """The model and parameters as :func:`rota.kernels.chance.chance_limits` takes
     them: ``1 / semi-axes`` (ones for a point robot), point robot, the obstacle's
     per-axis variance, ``z``, ``m``, ``b``, floor, per axis, ``v_floor``, ``v_max``."""
-    point = params.point_robot
-    inv = np.ones(3) if point else 1.0 / np.asarray(params.semi_axes)
-    return (inv, point, np.asarray(params.obstacle_std) ** 2, params.z, model.m, model.b,
-            model.floor, model.per_axis, params.v_floor, params.v_max)
+    fixed = params.__dict__.get("_kernel_args")  # (frozen: made once per params)
+    if fixed is None:
+        point = params.point_robot
+        inv = np.ones(3) if point else 1.0 / np.asarray(params.semi_axes)
+        fixed = (inv, point, np.asarray(params.obstacle_std) ** 2, params.z)
+        params.__dict__["_kernel_args"] = fixed
+    return (*fixed, model.m, model.b, model.floor, model.per_axis, params.v_floor,
+            params.v_max)
 
 
 def monte_carlo_collision_probability(

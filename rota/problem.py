@@ -6,6 +6,7 @@ produces is in one :class:`rota.result.RetimeResult` (ruckig-style).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -183,7 +184,7 @@ def make_grid(trajectory: Trajectory, dtau: float) -> FloatArray:
     and the step is ``T / N`` so the grid ends exactly at the trajectory's end.
     """
     t0, t1 = trajectory.domain
-    n = max(MIN_INTERVALS, int(np.ceil((t1 - t0) / dtau - 1e-9)))
+    n = max(MIN_INTERVALS, math.ceil((t1 - t0) / dtau - 1e-9))
     tau = np.arange(n + 1) * ((t1 - t0) / n) + t0  # as numpy's linspace, without its overhead
     tau[-1] = t1
     return tau

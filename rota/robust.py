@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rota.braking import BrakingParams, BrakingZones, horizon_of, zones_from
-from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args, memory_caps
+from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args
 from rota.errors import InputError
 from rota.jit import kernels
 from rota.trajectory import Trajectory
@@ -24,6 +24,10 @@ from rota.voxelmap import VoxelMap
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+
+#: No map box (the kernel's empty bounds).
+_NO_BOX = (np.zeros(0), np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -112,30 +116,20 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
         position, velocity, _ = trajectory.evaluate(tau)
     p, d1 = position, velocity
     margin = max(2.0, safety.braking.d_th)
-    distance, obstacle = safety.map.nearest(p, bbox_margin=margin)
+    distance, obstacle = safety.map.nearest_of(np.ascontiguousarray(p, dtype=float), margin)
     n = len(tau)
-    mask, infeasible = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
-    limit, unclamped, limits = np.empty(n), np.empty(n), np.empty(n)
+    bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
+    box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)  # (writable: one
+    # compiled kernel for every map)
+    unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
+    flags, values = np.empty((5, n), dtype=bool), np.empty((3, n))
     starts, ends = kernels().assess_nodes(
         p, d1, distance, obstacle, safety.braking.d_th, horizon_of(safety.braking),
-        *kernel_args(safety.uncertainty, safety.chance), mask, limit, unclamped, infeasible,
-        limits)
+        *kernel_args(safety.uncertainty, safety.chance), float(safety.uncertainty.memory_s),
+        max(safety.braking.d_th, max(safety.chance.semi_axes)), box[0], box[1],
+        float(unknown), flags, values)
+    mask, infeasible, approach, collision, outside = flags
+    limit, unclamped, limits = values
     zones = zones_from(tau, mask, starts, ends, distance, obstacle, safety.braking)
     chance = SpeedLimits(limit, unclamped, infeasible, safety.chance.v_floor)
-    approach = np.zeros(len(tau), dtype=bool)
-    if safety.uncertainty.memory_s > 0.0:
-        arclength = np.concatenate(
-            ([0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))))
-        remembered = memory_caps(arclength, limits, safety.uncertainty.memory_s)
-        approach = remembered < limits
-        limits = remembered
-    near = distance <= max(safety.braking.d_th, max(safety.chance.semi_axes))
-    collision = chance.infeasible & near
-    bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
-    if bounds is None:
-        outside = np.zeros(len(tau), dtype=bool)
-    else:
-        outside = np.any((p < bounds[0]) | (p > bounds[1]), axis=1)
-        unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
-        limits = np.where(outside, np.minimum(limits, unknown), limits)
     return Assessment(limits, zones, chance, collision, outside, p, approach)

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import interpolate
 
 from rota.errors import InputError
+from rota.jit import kernels
 from rota.validate import KeepsReadOnly
 
 FloatArray = NDArray[np.float64]
@@ -99,8 +100,6 @@ class Trajectory(KeepsReadOnly):
         domain's end (made once and kept)."""
         cached = self.__dict__.get("_edges")
         if cached is None:
-            from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
-
             t0, t1 = self.domain
             cached = kernels().piece_edges(self.pieces[0], float(t0), float(t1))
             cached.setflags(write=False)
@@ -142,6 +141,14 @@ class Trajectory(KeepsReadOnly):
         return cached
 
 
+def _writable(a: FloatArray) -> FloatArray:
+    """``a`` itself if it is a writable C-contiguous float array, else such a copy."""
+    f = a.flags
+    if a.dtype == np.float64 and f.c_contiguous and f.writeable:
+        return a
+    return np.array(a, dtype=float, order="C")
+
+
 def _pieces_of(spline: object) -> tuple[FloatArray, FloatArray]:
     """Taylor coefficients of every piece of a scipy spline (read-only arrays)."""
     if isinstance(spline, interpolate.BPoly):
@@ -150,13 +157,10 @@ def _pieces_of(spline: object) -> tuple[FloatArray, FloatArray]:
         breaks = np.asarray(spline.x, dtype=float)
         coefs = np.ascontiguousarray(np.transpose(spline.c[::-1], (1, 0, 2)), dtype=float)
     else:  # BSpline: derivatives at the start of every non-empty knot span (compiled)
-        from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
-
-        # (copies: the kernel is compiled for writable arrays, and a spline made from a
-        # decoded message may hold read-only ones)
-        breaks, coefs = kernels().bspline_pieces(
-            np.array(spline.t, dtype=float, order="C"),
-            np.array(spline.c, dtype=float, order="C"), int(spline.k))
+        # (the kernel is compiled for writable C arrays; a spline made from a decoded
+        # message may hold read-only ones: those are copied)
+        breaks, coefs = kernels().bspline_pieces(_writable(spline.t), _writable(spline.c),
+                                                 int(spline.k))
     # A zero-length piece (repeated break) is never selected; keep shapes consistent.
     breaks = np.ascontiguousarray(breaks, dtype=float)
     breaks.setflags(write=False)
@@ -212,6 +216,7 @@ class BSplineTrajectory(Trajectory):
         if self.knots is not None:
             object.__setattr__(self, "knots", knots)
         object.__setattr__(self, "_knot_vector", knots)
+        object.__setattr__(self, "_domain", (float(knots[k]), float(knots[n])))
         self._set_spline(interpolate.BSpline(knots, cps, k, extrapolate=False))
 
     @property
@@ -221,8 +226,7 @@ class BSplineTrajectory(Trajectory):
 
     @property
     def domain(self) -> tuple[float, float]:
-        n, k = len(self.control_points), int(self.degree)
-        return float(self.knot_vector[k]), float(self.knot_vector[n])
+        return self._domain  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)

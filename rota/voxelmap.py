@@ -329,6 +329,11 @@ class VoxelMap(KeepsReadOnly):
         margin = float(bbox_margin)
         if math.isnan(margin) or margin < 0.0:
             raise InputError("bbox_margin", f"must be >= 0, got {margin}")
+        return self.nearest_of(pts, margin)
+
+    def nearest_of(self, pts: FloatArray, margin: float) -> tuple[FloatArray, FloatArray]:
+        """:meth:`nearest` without checking its arguments: ``pts`` a finite C float
+        array ``(m, 3)``, ``margin`` a float >= 0 (the re-timer's own queries)."""
         m = pts.shape[0]
         dist = np.full(m, np.inf)
         obst = np.full((m, 3), np.nan)

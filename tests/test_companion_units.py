@@ -242,7 +242,8 @@ def test_a_joined_replan_starts_at_the_command_and_keeps_the_speed_limit():
     np.testing.assert_allclose(cmds[0].position, here, atol=1e-9)
     speed = np.linalg.norm([c.velocity for c in cmds], axis=1)
     acc = np.abs([c.acceleration for c in cmds]).max(axis=0)
-    assert speed.max() <= 2.0 * 1.001 and np.all(acc <= np.array(limits.a_max) * 1.01), (speed.max(), acc)
+    assert speed.max() <= 2.0 * 1.001, speed.max()
+    assert np.all(acc <= np.array(limits.a_max) * 1.01), acc
     lateral = np.array([c.position[1] for c in cmds])
     assert lateral[0] == pytest.approx(0.6) and abs(lateral[-1]) < 1e-9  # back on the path
 

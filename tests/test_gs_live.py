@@ -247,6 +247,6 @@ def test_the_flight_record_replays(live):
     # [2, 2, 1.5]), within the re-timer's 1 % between check points
     assert figures["max_commanded_speed_m_s"] <= 2.0 * 1.01
     assert all(a <= lim * 1.01 for a, lim in
-               zip(figures["max_acceleration_per_axis_m_s2"], (2.0, 2.0, 1.5)))
+               zip(figures["max_acceleration_per_axis_m_s2"], (2.0, 2.0, 1.5), strict=True))
     assert out.stat().st_size > 50_000
     shutil.rmtree(live.record_dir)

@@ -89,3 +89,27 @@ def test_a_start_offset_must_be_three_finite_numbers_and_fade_within_the_path() 
                                  ([0.1, 0.2, 0.0], t1 - t0 + 1.0, "start_blend")):
         with pytest.raises(InputError, match=words.replace("[", r"\[")):
             Window(base=base, start=t0, offset=offset, blend=blend)
+
+
+@pytest.mark.parametrize(("dtau", "span"), [(0.5, 0.1), (0.1, 0.1), (0.37, 0.05), (0.05, 0.5)])
+def test_check_points_cut_every_piece_and_are_no_denser_than_needed(dtau, span) -> None:
+    """Every input piece is cut in at least PIECE_PARTS parts, every interval in
+    parts no longer than SPACING; a piece that its own points cut gets no uniform
+    points inside it as well (they would only add rows)."""
+    from rota.checkpoints import PIECE_PARTS, SPACING, sample_path
+    from rota.problem import make_grid
+    from tests.strategies import bspline
+
+    traj = bspline(4, 40, span)
+    tau = make_grid(traj, dtau)
+    path = sample_path(traj, tau, np.full(len(tau), 2.0), np.full(3, 2.0))
+    at = np.unique(np.round(path.point_tau, 12))
+    assert np.all(np.isin(np.round(tau, 12), at))  # the nodes
+    edges = traj.edges
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        inside = at[(at > a + 1e-12) & (at < b - 1e-12)]
+        gaps = np.diff(np.concatenate([[a], inside, [b]]))
+        assert gaps.max() <= (b - a) / PIECE_PARTS + 1e-9
+        # no more than the piece's own points and the interval ends in it
+        assert len(inside) <= PIECE_PARTS - 1 + np.count_nonzero((tau > a) & (tau < b)) \
+            or (b - a) / PIECE_PARTS > SPACING

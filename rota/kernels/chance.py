@@ -196,14 +196,47 @@ def braking_points(pos, vel, dist, obstacle, d_th, horizon, mask):
 
 @njit
 def assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot, obs_var, z,
-                 m, b, fl, per_axis, v_floor, v_max, mask, limit, unclamped, infeasible,
-                 node_limit):
-    """:func:`braking_points` and :func:`chance_limits` in one call, and every node's
-    speed limit into ``node_limit``: the chance limit at braking points, ``inf``
-    elsewhere. Returns the braking points' runs ``(starts, ends)``."""
+                 m, b, fl, per_axis, v_floor, v_max, memory_s, near, lo, hi, unknown, flags,
+                 values):
+    """The map seen from the path on the grid, in one call (:func:`rota.robust.assess`).
+
+    :func:`braking_points` and :func:`chance_limits`; every node's speed limit: the
+    chance limit at braking points, ``inf`` elsewhere, then held over the path
+    before each braking point for ``memory_s`` (:func:`memory_caps`), then at most
+    ``unknown`` outside the box ``lo``-``hi`` (``lo`` empty: no box).
+
+    Into ``flags`` (5, n): braking points, chance infeasible, limited only by the
+    memory ("approach"), collision (infeasible within ``near`` of the obstacle),
+    outside the box; into ``values`` (3, n): chance limit, unclamped limit, node
+    limit. Returns the braking points' runs ``(starts, ends)``.
+    """
+    n = pos.shape[0]
+    mask, infeasible, approach, collision, outside = (flags[0], flags[1], flags[2],
+                                                      flags[3], flags[4])
+    limit, unclamped, node_limit = values[0], values[1], values[2]
     starts, ends = braking_points(pos, vel, dist, obstacle, d_th, horizon, mask)
     chance_limits(pos, vel, obstacle, inv_axes, point_robot, obs_var, z, m, b, fl, per_axis,
                   v_floor, v_max, limit, unclamped, infeasible)
-    for q in range(pos.shape[0]):
-        node_limit[q] = limit[q] if mask[q] else np.inf
+    raw = np.empty(n)
+    for q in range(n):
+        raw[q] = limit[q] if mask[q] else np.inf
+    arclength = np.empty(n)
+    arclength[0] = 0.0
+    for q in range(1, n):
+        arclength[q] = arclength[q - 1] + np.sqrt(
+            (pos[q, 0] - pos[q - 1, 0]) ** 2 + (pos[q, 1] - pos[q - 1, 1]) ** 2
+            + (pos[q, 2] - pos[q - 1, 2]) ** 2)
+    memory_caps(arclength, raw, memory_s, node_limit)
+    box = lo.shape[0] == 3
+    for q in range(n):
+        approach[q] = node_limit[q] < raw[q]
+        collision[q] = infeasible[q] and dist[q] <= near
+        out = False
+        if box:
+            for ax in range(3):
+                if pos[q, ax] < lo[ax] or pos[q, ax] > hi[ax]:
+                    out = True
+        outside[q] = out
+        if out and unknown < node_limit[q]:
+            node_limit[q] = unknown
     return starts, ends

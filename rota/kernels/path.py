@@ -63,11 +63,13 @@ def eval_pieces(breaks, coefs, tau, pos, d1, d2):
 @njit
 def check_points(tau, edges, parts, piece_parts):
     """Check points of every interval of the grid ``tau`` (uniform step), sorted by
-    interval and fraction: ``parts + 1`` uniform ones (both ends included), every
-    inner piece end ``edges[1:-1]``, and ``piece_parts - 1`` inner points of every
-    piece ``[edges[j], edges[j + 1]]`` that the uniform ones cut in fewer than
-    ``piece_parts`` parts. Points closer than 1e-12 (in fractions of an interval)
-    to an earlier one of the same interval are dropped.
+    interval and fraction: both ends of every interval, every inner piece end
+    ``edges[1:-1]``, ``piece_parts - 1`` inner points of every piece ``[edges[j],
+    edges[j + 1]]`` that the uniform subdivision of the intervals into ``parts``
+    would cut in fewer than ``piece_parts`` parts ("short" pieces), and that
+    subdivision's inner points where they do not fall inside a short piece (its own
+    points are denser there). Points closer than 1e-12 (in fractions of an
+    interval) to an earlier one of the same interval are dropped.
 
     Returns ``(offsets (N + 1,), frac (M,), at (M,))``: the points of interval i
     are ``offsets[i]`` to ``offsets[i + 1] - 1``; ``at`` their trajectory times.
@@ -77,8 +79,10 @@ def check_points(tau, edges, parts, piece_parts):
     n_pieces = edges.shape[0] - 1
     # the extra points, in increasing order
     cap = max(n_pieces - 1, 0)
+    short = np.zeros(max(n_pieces, 1), np.bool_)
     for j in range(n_pieces):
         if (edges[j + 1] - edges[j]) * parts < piece_parts * h:
+            short[j] = True
             cap += piece_parts - 1
     extra = np.empty(cap)
     m = 0
@@ -87,7 +91,7 @@ def check_points(tau, edges, parts, piece_parts):
             extra[m] = edges[j]
             m += 1
         length = edges[j + 1] - edges[j]
-        if length * parts < piece_parts * h:
+        if short[j]:
             for k in range(1, piece_parts):
                 extra[m] = edges[j] + length * (k / piece_parts)
                 m += 1
@@ -107,6 +111,7 @@ def check_points(tau, edges, parts, piece_parts):
     at = np.empty(total)
     out = 0
     q = 0
+    jp = 0  # the piece of the latest uniform point
     for i in range(n):
         offsets[i] = out
         u = 0
@@ -118,6 +123,12 @@ def check_points(tau, edges, parts, piece_parts):
             f = u / parts if take_u else e_frac[q]
             if take_u:
                 u += 1
+                if 1 < u <= parts and n_pieces > 0:  # an inner uniform point
+                    t = tau[i] + f * h
+                    while jp < n_pieces - 1 and edges[jp + 1] <= t:
+                        jp += 1
+                    if short[jp] and edges[jp] < t < edges[jp + 1]:
+                        continue
             else:
                 q += 1
             if out > offsets[i] and f - last <= 1e-12:
