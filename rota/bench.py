@@ -422,6 +422,37 @@ def machine() -> dict[str, str]:
             "packages": ", ".join(f"{k} {v}" for k, v in versions.items())}
 
 
+def calibration_s() -> float:
+    """Median seconds of a fixed piece of CPU work (Python loop, small numpy calls,
+    a 200 x 200 solve): how fast the machine was in this run. This shared machine's
+    speed varies by up to 1.7x between runs; the ratios against the paper move with
+    it, those against the peers of the same run do not."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(200, 200)) + 200 * np.eye(200)
+    b = rng.normal(size=200)
+    times = []
+    for _ in range(7):
+        t0 = time.perf_counter()
+        acc = 0.0
+        for i in range(100_000):
+            acc += i * 0.5
+        for _ in range(1000):
+            np.minimum(b, acc)
+        np.linalg.solve(a, b)
+        times.append(time.perf_counter() - t0)
+    return _median(times)
+
+
+def host_steal_s() -> float:
+    """Seconds the hypervisor has taken from this machine's CPUs (``steal`` of
+    ``/proc/stat``, summed over CPUs; 0 where there is none)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def _ms(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{1e3 * x:.2f}"
 
@@ -447,6 +478,11 @@ def to_markdown(report: dict[str, Any]) -> str:
     m = report["machine"]
     lines = [f"Machine: {m['cpu']}, {m['cores']} cores, {m['system']}, Python {m['python']}; "
              f"{m['packages']}.", ""]
+    if "calibration_ms" in report:
+        lines += [f"Speed of the machine in this run: the fixed calibration work "
+                  f"(`rota.bench.calibration_s`) took {report['calibration_ms']:.2f} ms; the "
+                  f"hypervisor took {100 * report['host_steal_share']:.1f} % of the CPUs' time "
+                  "during the run.", ""]
     if report.get("startup"):
         st = report["startup"]
         lines += [f"Start-up, each in a fresh process: `import rota` {st['import_rota_s']:.2f} s; "
@@ -514,6 +550,7 @@ def run_bench(out_dir: str | Path, quick: bool = False, repeats: int = 5,
     """Run the benchmark, write ``bench.md`` and ``bench.json`` to ``out_dir``,
     return the report. ``quick``: two small rows, no optimisation-step study."""
     start = time.perf_counter()
+    steal0, calibration = host_steal_s(), calibration_s()
     trajs, vmap = load_data()
     safety = Safety(map=vmap)
     rows_spec = list(QUICK_ROWS) if quick else [(n, d) for n in ("7m", "30m") for d in DTAUS]
@@ -533,8 +570,11 @@ def run_bench(out_dir: str | Path, quick: bool = False, repeats: int = 5,
             fit[f"{key} {name}"] = fit_exponent([r["N"] for r in sel],
                                                 [r["median_s"][key] for r in sel])
     startup = {} if quick else startup_costs()
+    seconds = time.perf_counter() - start
     report = {"machine": machine(), "repeats": repeats, "rows": rows, "topp_rows": topp_rows,
-              "fit": fit, "startup": startup, "seconds": time.perf_counter() - start}
+              "fit": fit, "startup": startup, "seconds": seconds,
+              "calibration_ms": 1e3 * calibration,
+              "host_steal_share": (host_steal_s() - steal0) / (seconds * (os.cpu_count() or 1))}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(json.dumps(report, indent=1, default=str) + "\n")

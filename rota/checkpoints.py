@@ -5,12 +5,13 @@ Beta is linear in tau inside an interval, alpha constant, so at fraction ``f``
 of interval ``i`` the limits are linear in ``(beta_i, beta_{i+1})``. Check points:
 
 * both ends of every interval (alpha jumps at the nodes);
-* a uniform subdivision of every interval into at least :data:`MIN_PARTS` parts,
-  at most :data:`SPACING` of trajectory time apart;
 * the path's own breakpoints (B-spline knots, segment ends, sample times: the
   acceleration may peak there);
 * inside every input piece at least :data:`PIECE_PARTS` parts, so that a short,
-  stiff piece (two samples 1 ms apart) is checked inside too.
+  stiff piece (two samples 1 ms apart) is checked inside too;
+* elsewhere (inside pieces long enough not to need their own points) a uniform
+  subdivision of every interval into at least :data:`MIN_PARTS` parts, at most
+  :data:`SPACING` of trajectory time apart.
 
 After a solve, :func:`rota.retime.audit` looks between the check points (the midpoint of
 every gap); a limit broken there adds those points and the re-timer solves
