@@ -81,8 +81,16 @@ def test_enu_ned_conversion():
     assert heading_ned_deg([1.0, 0.0, 0.0]) == pytest.approx(90.0)  # east
 
 
+def _joined(base):
+    from rota.trajectory import Window
+
+    t0, t1 = base.domain
+    return Window(base=base, start=t0 + 0.2 * (t1 - t0), offset=[0.3, -0.2, 0.5],
+                  blend=0.3 * (t1 - t0))
+
+
 @pytest.mark.parametrize("traj", [bspline(1, 5, 1.0), polynomial(1, 5, 1.0),
-                                  sampled(1, 5, 1.0, True)])
+                                  sampled(1, 5, 1.0, True), _joined(bspline(2, 6, 1.0))])
 def test_trajectory_frame_conversion(traj):
     ned = trajectory_to_enu(traj, "NED")  # the same numbers read as NED
     tau = np.linspace(*traj.domain, 30)
