@@ -119,8 +119,8 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
     distance, obstacle = safety.map.nearest_of(np.ascontiguousarray(p, dtype=float), margin)
     n = len(tau)
     bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
-    box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)  # (writable: one
-    # compiled kernel for every map)
+    # (a writable copy: the kernel is compiled for writable arrays)
+    box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)
     unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
     flags, values = np.empty((5, n), dtype=bool), np.empty((3, n))
     starts, ends = kernels().assess_nodes(

@@ -104,7 +104,7 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
             raise
         raise InputError("(trajectory)", str(exc)) from None
     if d.get("start") is not None or d.get("start_offset") is not None:
-        start = d.get("start", traj.domain[0])
+        start = traj.domain[0] if d.get("start") is None else d["start"]
         blend = d.get("start_blend", 0.0)
         for key, value in (("start", start), ("start_blend", blend)):
             if isinstance(value, bool) or not isinstance(value, int | float):

@@ -72,6 +72,8 @@ def test_a_window_with_a_start_offset_has_the_pieces_of_its_blend(seed: int) -> 
     after = np.linspace(start + blend, t1, 7)  # and nothing after the blend
     np.testing.assert_allclose(win.position(after), base.position(after), atol=1e-12)
     back = trajectory_from_dict(trajectory_to_dict(TrajectoryMessage(win))).trajectory
+    d = trajectory_to_dict(TrajectoryMessage(win)) | {"start": None}  # offset from the start
+    assert trajectory_from_dict(d).trajectory.start == t0
     np.testing.assert_allclose(back.position(np.linspace(start, t1, 50)),
                                win.position(np.linspace(start, t1, 50)), atol=1e-12)
 
