@@ -53,6 +53,7 @@ class StreamFigures:
     host_steal_gaps: int = 0  # send gaps within which the host took a CPU away
     host_steal_s: float = 0.0  # how much it took within them (s), left out of them
     max_gap_with_steal_s: float = 0.0  # the largest send gap, the host's time in it
+    max_commanded_speed: float = 0.0  # largest |velocity| commanded, m/s
 
     def problems(self, max_gap_s: float = 0.1, p99_gap_s: float = 0.025) -> list[str]:
         """What breaks the stream's promises (empty: none)."""
@@ -76,7 +77,8 @@ class StreamFigures:
         return (f"{self.count} setpoints in {self.duration_s:.1f} s; gap max "
                 f"{self.max_gap_s * 1e3:.1f} ms, p99 {self.p99_gap_s * 1e3:.1f} ms (arrival: max "
                 f"{self.max_arrival_gap_s * 1e3:.1f}, p99 {self.p99_arrival_gap_s * 1e3:.1f} ms); "
-                f"fastest step {self.max_speed:.2f} m/s, {self.jumps} jumps, "
+                f"fastest step {self.max_speed:.2f} m/s, fastest velocity commanded "
+                f"{self.max_commanded_speed:.3f} m/s, {self.jumps} jumps, "
                 f"{self.outside_fence} outside the fence, {self.non_finite} non-finite"
                 + (f"; gaps net of {self.host_steal_s * 1e3:.0f} ms the host took a CPU "
                    f"away within {self.host_steal_gaps} of them (largest gap with it: "
@@ -161,4 +163,5 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         largest_jump_m=float(np.nanmax(np.where(over, step, 0.0))),
         outside_fence=outside, non_finite=int(n - finite.sum()),
         host_steal_gaps=int(np.count_nonzero(stolen)), host_steal_s=float(stolen.sum()),
-        max_gap_with_steal_s=float((gaps + stolen).max()) if len(gaps) else 0.0)
+        max_gap_with_steal_s=float((gaps + stolen).max()) if len(gaps) else 0.0,
+        max_commanded_speed=float(np.max(np.linalg.norm(v[finite], axis=1), initial=0.0)))
