@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rota.result import RetimeResult
+from rota.trajectory import smootherstep_fade
 
 FloatArray = NDArray[np.float64]
 
@@ -84,11 +85,9 @@ class Plan:
     def command(self, now: float) -> Command:
         sp = self.result.sample(max(now - self.t0, 0.0))
         p, v, a = sp.position[0], sp.velocity[0], sp.acceleration[0]
-        x = float(np.clip((now - self._blend_start) / self.blend_s, 0.0, 1.0))
+        x = (now - self._blend_start) / self.blend_s
         if np.any(self.offset) and x < 1.0:
-            w = 1 - x**3 * (10 - 15 * x + 6 * x * x)  # smootherstep from 1 to 0
-            dw = -30 * x * x * (1 - x) ** 2 / self.blend_s
-            ddw = -60 * x * (1 - x) * (1 - 2 * x) / self.blend_s**2
+            w, dw, ddw = smootherstep_fade(x, self.blend_s)
             p, v, a = p + w * self.offset, v + dw * self.offset, a + ddw * self.offset
         return Command(p, v, a)
 

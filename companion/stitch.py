@@ -76,13 +76,13 @@ def join(traj: Trajectory, position: np.ndarray, velocity: np.ndarray, tolerance
     (:class:`rota.trajectory.Window`), so the re-time bounds speed, acceleration
     and the chance constraints of the path as it will be flown, blend included."""
     tau0 = nearest_tau(traj, position, tolerance)
-    gap = float(np.linalg.norm(traj.position(tau0)[0] - position))
+    offset = np.asarray(position, dtype=float) - traj.position(tau0)[0]
+    gap = float(np.linalg.norm(offset))
     if gap > tolerance:
         raise StitchError(f"starts {gap:.2f} m from the commanded position "
                           f"(tolerance {tolerance} m)")
     if tau0 >= traj.domain[1] - 1e-6:
         raise StitchError("the vehicle is already past its end")
-    offset = np.asarray(position, dtype=float) - traj.position(tau0)[0]
     if gap > 1e-9:  # begin exactly at the command; the re-time bounds the blend too
         blend = min(blend_time(gap), traj.domain[1] - tau0)
         traj = Window(base=traj, start=tau0, offset=offset, blend=blend)

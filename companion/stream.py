@@ -326,13 +326,15 @@ class SetpointStream:
             now = time.monotonic()
             stall, self.last_tick = now - self.last_tick, now
             self.clock.tick()
+            budget = self._cfg().stream.stall_budget_s
+            why = self.clock.explain() if stall > min(LATE_TICK_S, budget) else ""
             if stall > LATE_TICK_S:
                 log.warning("setpoint stream late: %.0f ms since the last tick (%s)",
-                            1e3 * stall, self.clock.explain() or "no kernel figures")
+                            1e3 * stall, why or "no kernel figures")
             with self.lock:
                 if self.streaming:
-                    if stall > self._cfg().stream.stall_budget_s:
-                        self._stalled(stall, now)
+                    if stall > budget:
+                        self._stalled(stall, now, why)
                     if self.streaming:
                         self._step(now)
             beat()
@@ -343,10 +345,10 @@ class SetpointStream:
         px4 = self.autopilot.offboard_loss_timeout_s
         return cfg if px4 is None or not px4 > 0 else min(cfg, px4)
 
-    def _stalled(self, stall: float, now: float) -> None:
+    def _stalled(self, stall: float, now: float, why: str) -> None:
+        """``why``: the kernel's account of the stall (:meth:`TickClock.explain`)."""
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, stall)
-        why = self.clock.explain()
         what = f"the service was stalled for {stall:.2f} s" + (f" ({why})" if why else "")
         if stall >= LOSS_SHARE * self.loss_timeout():
             self._end(f"{what} (PX4's offboard-loss timeout is {self.loss_timeout():.2f} s)")

@@ -346,8 +346,19 @@ class SampledTrajectory(Trajectory):
         return float(self.t[0]), float(self.t[-1])
 
 
-#: The quintic smootherstep fading from 1 to 0 on ``x in [0, 1]``, ascending powers.
+#: :func:`smootherstep_fade`'s polynomial in ascending powers of ``x``.
 _FADE = np.array([1.0, 0.0, 0.0, -10.0, 15.0, -6.0])
+
+
+def smootherstep_fade(x: ArrayLike, length: float) -> tuple[ArrayLike, ArrayLike, ArrayLike]:
+    """The quintic smootherstep falling from 1 at ``x = 0`` to 0 at ``x = 1`` (``x``
+    clipped to [0, 1]), and its first two derivatives with respect to a variable
+    that covers [0, 1] of ``x`` in ``length``: both are zero at the ends."""
+    u = np.clip(x, 0.0, 1.0)
+    w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
+    dw = -30.0 * u * u * (1.0 - u) ** 2 / length
+    ddw = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / length**2
+    return w, dw, ddw
 
 
 def _taylor_shift(coefs: FloatArray, delta: FloatArray) -> FloatArray:
@@ -408,10 +419,7 @@ class Window(Trajectory):
 
     def _fade(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The shift and its first two derivatives at trajectory times ``x``, (n, 3)."""
-        u = np.clip((x - self.start) / self.blend, 0.0, 1.0)
-        w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
-        dw = -30.0 * u * u * (1.0 - u) ** 2 / self.blend
-        ddw = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / self.blend**2
+        w, dw, ddw = smootherstep_fade((x - self.start) / self.blend, self.blend)
         off = self.offset[None, :]  # type: ignore[index]
         return w[:, None] * off, dw[:, None] * off, ddw[:, None] * off
 
