@@ -345,7 +345,7 @@ class SetpointStream:
         px4 = self.autopilot.offboard_loss_timeout_s
         return cfg if px4 is None or not px4 > 0 else min(cfg, px4)
 
-    def _stalled(self, stall: float, now: float, why: str) -> None:
+    def _stalled(self, stall: float, now: float, why: str = "") -> None:
         """``why``: the kernel's account of the stall (:meth:`TickClock.explain`)."""
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, stall)
