@@ -7,7 +7,8 @@ same path and limits, runs
 
 * the full ROTA pipeline (:func:`rota.retime` with the map: braking zones, chance
   constraints, reachability, the fast solver, constraint generation, checks), the
-  solver alone (all rounds), its peak memory, and the same pipeline with Clarabel;
+  solver alone (run again on the last round's problem), its peak memory, and the
+  same pipeline with Clarabel;
 * the peers on the time-optimal problem (lambda = 0, no chance constraints):
   toppra (seidel) and copp-py (``topp2_ra``, reachability in Rust, and
   ``copp2_socp``, Rust on Clarabel), next to ROTA on its own problem and on the
@@ -120,41 +121,51 @@ def objective(tau: np.ndarray, beta: np.ndarray, lam: float) -> float:
 
 # ------------------------------------------------------------------- ROTA runs
 @contextmanager
-def _count_solver():
-    """Accumulate the wall time of every solver call inside retime(), and keep the
-    last chain problem it built (for the same-problem reference)."""
-    acc: dict[str, Any] = {"time": 0.0, "rounds": 0, "problem": None}
-    orig_solve, orig_build = _retime_mod.solve, _retime_mod.build
-
-    def timed(problem, settings, start=None):
-        t0 = time.perf_counter()
-        out = orig_solve(problem, settings, start=start)
-        acc["time"] += time.perf_counter() - t0
-        acc["rounds"] += 1
-        return out
+def _keep_round():
+    """Keep the last round inside retime() (:func:`rota.rounds.one_round`)."""
+    acc: dict[str, Any] = {"round": None}
+    orig = _retime_mod.one_round
 
     def kept(*args, **kwargs):
-        acc["problem"] = orig_build(*args, **kwargs)
-        return acc["problem"]
+        acc["round"] = orig(*args, **kwargs)
+        return acc["round"]
 
-    _retime_mod.solve, _retime_mod.build = timed, kept
+    _retime_mod.one_round = kept
     try:
         yield acc
     finally:
-        _retime_mod.solve, _retime_mod.build = orig_solve, orig_build
+        _retime_mod.one_round = orig
+
+
+def solver_alone(rnd: Any, settings: SolverSettings) -> float:
+    """Seconds of the solver alone on a round's problem (tightened bounds, from the
+    greedy profile, as inside the round), run again on its own: the fast solver
+    runs inside the round's single compiled call, where it cannot be timed apart.
+    0 when reachability alone gave the answer."""
+    from rota.solver import solve
+
+    if rnd is None or rnd.tight is None or rnd.stats is None or rnd.stats.iterations == 0:
+        return 0.0
+    t0 = time.perf_counter()
+    solve(rnd.tight, settings, start=rnd.reach.greedy)
+    return time.perf_counter() - t0
 
 
 def run_rota(inp: RetimeInput, keep: dict | None = None) -> tuple[float, float, Any]:
     """One timed re-time of ``inp`` on a fresh copy of its trajectory (a replan
-    brings a new one: its conversion to polynomial pieces is timed too)."""
+    brings a new one: its conversion to polynomial pieces is timed too). With
+    ``keep``, also the solver alone on the last round's problem (:func:`solver_alone`,
+    after the timed call) and that problem in ``keep["problem"]``."""
     inp = replace(inp, trajectory=inp.trajectory.fresh())
-    with _count_solver() as acc:
+    with _keep_round() as acc:
         t0 = time.perf_counter()
         res = _retime_mod.retime(inp)
         wall = time.perf_counter() - t0
+    solver_s = float("nan")
     if keep is not None:
-        keep["problem"] = acc["problem"]
-    return wall, acc["time"], res
+        keep["problem"] = acc["round"].problem
+        solver_s = solver_alone(acc["round"], inp.solver)
+    return wall, solver_s, res
 
 
 def _breaks_rows(problem: _chain.ChainProblem, beta: np.ndarray) -> str | None:
@@ -266,7 +277,7 @@ def bench_row(name: str, dtau: float, traj: Trajectory, safety: Safety, repeats:
     tau = make_grid(traj, full_inp.dtau)
     n = len(tau) - 1
     # Warm-up (imports, caches), then the reference solves (not timed).
-    _, _, res = run_rota(full_inp)
+    _, _, res = run_rota(full_inp, {})
     vlim = np.asarray(res.speed_limits)
     fr = REF_FINE if n <= FINE_REF_MAX else REF_DENSE if n <= DENSE_REF_MAX else REF_SPARSE
     ref_beta, ref_secs = cvxpy_solve(traj, tau, vlim, LAMBDA, fr, tol=REF_TOL)

@@ -10,6 +10,7 @@ bound a polygon in the plane of its two nodes; only its edges are kept).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +39,11 @@ class Boundary:
     beta_start: float | None = 0.0
     alpha_start: float | None = None
     beta_end: float | None = 0.0
+
+    def as_nan(self) -> tuple[float, float, float]:
+        """``(beta_start, alpha_start, beta_end)`` with NaN for None (the kernels' form)."""
+        return tuple(math.nan if x is None else float(x)  # type: ignore[return-value]
+                     for x in (self.beta_start, self.alpha_start, self.beta_end))
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,13 +92,7 @@ def build(path: PathSamples, smoothness: float, boundary: Boundary) -> ChainProb
     """
     n = len(path.tau)
     h = path.h
-    fixed = np.zeros(n, dtype=bool)
-    value = np.zeros(n)
-    for idx, target in ((0, boundary.beta_start), (n - 1, boundary.beta_end)):
-        if target is not None:
-            fixed[idx], value[idx] = True, target
-    if boundary.alpha_start is not None and boundary.beta_start is not None:
-        fixed[1], value[1] = True, max(boundary.beta_start + 2 * h * boundary.alpha_start, 0.0)
+    fixed, value = kernels().boundary_nodes(n, h, *boundary.as_nan())
     hi = np.ascontiguousarray(path.beta_max, dtype=float)
     rk, ra, rc, kind, point, rptr = kernels().build_rows(
         h, path.offsets, path.frac, path.cd1, path.cd2, np.ascontiguousarray(path.vlim, float),

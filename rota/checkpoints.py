@@ -13,14 +13,15 @@ of interval ``i`` the limits are linear in ``(beta_i, beta_{i+1})``. Check point
   subdivision of every interval into at least :data:`MIN_PARTS` parts, at most
   :data:`SPACING` of trajectory time apart.
 
-After a solve, :func:`rota.retime.audit` looks between the check points (the midpoint of
+After a solve, :func:`rota.rounds.audit` looks between the check points (the midpoint of
 every gap); a limit broken there adds those points and the re-timer solves
-again (constraint generation).
+again (constraint generation, :mod:`rota.rounds`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +43,8 @@ MIN_PARTS = 4
 SPACING = 0.025
 #: Every input piece is cut in at least this many parts by check points.
 PIECE_PARTS = 8
+#: No points added: ``(interval, fraction)`` of the check points a round adds.
+NO_POINTS = (np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -84,26 +87,10 @@ class PathSamples:
         i = self.interval
         return self.tau[i] + self.frac * self.h
 
-    def with_points(self, trajectory: Trajectory, interval: IntArray,
-                    frac: FloatArray) -> PathSamples:
-        """The same path with more check points."""
-        return _assemble(trajectory, self, np.concatenate([self.interval, interval]),
-                         np.concatenate([self.frac, frac]))
 
-
-def _assemble(trajectory: Trajectory, base: PathSamples, interval: IntArray,
-              frac: FloatArray) -> PathSamples:
-    """Sort the check points by interval and fraction, evaluate the path there."""
-    key = interval * 2.0 + frac
-    order = np.argsort(key, kind="stable")
-    key = key[order]
-    keep = np.concatenate([[True], np.diff(key) > 1e-12])
-    interval, frac = interval[order][keep], frac[order][keep]
-    n = base.n_intervals
-    offsets = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(interval, minlength=n), out=offsets[1:])
-    _, c1, c2 = evaluate(trajectory, base.tau[interval] + frac * base.h)
-    return replace(base, offsets=offsets, frac=frac, cd1=c1, cd2=c2)
+def uniform_parts(h: float) -> int:
+    """Parts of the uniform subdivision of an interval of length ``h``."""
+    return max(MIN_PARTS, math.ceil(h / SPACING - 1e-9))
 
 
 def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
@@ -119,14 +106,13 @@ def sample_path(trajectory: Trajectory, tau: FloatArray, vlim: FloatArray,
     """
     if d1 is None or d2 is None:
         _, d1, d2 = evaluate(trajectory, tau)
-    h = float(tau[1] - tau[0])
-    parts = max(MIN_PARTS, int(np.ceil(h / SPACING - 1e-9)))
+    parts = uniform_parts(float(tau[1] - tau[0]))
     vlim = np.ascontiguousarray(vlim, dtype=float)
     breaks, coefs = trajectory.pieces
     t0, t1 = trajectory.domain
     offsets, frac, c1, c2, beta_max, moving = kernels().sample(
         breaks, coefs, float(t0), float(t1), tau, parts, PIECE_PARTS, d1, vlim, STILL,
-        BETA_CAP_FACTOR)
+        BETA_CAP_FACTOR, *NO_POINTS)
     return PathSamples(tau=tau, d1=d1, d2=d2, beta_max=beta_max, vlim=vlim,
                        a_max=np.ascontiguousarray(a_max, dtype=float), offsets=offsets,
                        frac=frac, cd1=c1, cd2=c2, moving=bool(moving))

@@ -5,19 +5,18 @@ when the optimum cannot be had, the result says why and carries the fallback."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.chain import Boundary, ChainProblem, Reach, build, describe, reach
-from rota.checkpoints import STILL, PathSamples, sample_path
-from rota.jit import kernels
+from rota.chain import Boundary, ChainProblem, describe
+from rota.checkpoints import NO_POINTS, STILL, PathSamples, sample_path
 from rota.path import evaluate
 from rota.problem import RetimeInput, make_grid
 from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
 from rota.robust import assess
-from rota.solver import SolverStats, solve
+from rota.rounds import Audit, finish, more_points, one_round
+from rota.solver import SolverStats
 from rota.timemap import TimeMap
 from rota.trajectory import Trajectory
 
@@ -27,13 +26,11 @@ FloatArray = NDArray[np.float64]
 TANGENT_TOL = 0.05
 #: Relative tolerance when checking the solver's solution against the constraints.
 CHECK_TOL = 1e-3
-#: A limit broken by more than this share between check points (speed, or
-#: acceleration on any axis) triggers a re-solve with more check points.
-REFINE_TOL = 5e-4
 #: Solves at most (1 + rounds of constraint generation).
 MAX_ROUNDS = 4
 #: Share of the smallest acceleration limit used to brake a start that is too fast.
 BRAKE_SHARE = 0.5
+DEGENERATE = "degenerate trajectory: the path does not move (its length is 0)"
 
 
 class Infeasible(Exception):
@@ -80,43 +77,40 @@ def retime(inp: RetimeInput) -> RetimeResult:
         if seen.collision.any():
             return fallback(seen.describe_collision(tau), status=REJECTED)
     a_max = inp.limits.a_max_vec
-    path = sample_path(traj, tau, vlim, a_max, d1, d2)
-    if not path.moving:
-        return fallback("degenerate trajectory: the path does not move (its length is 0)")
     limit_before = vlim
     v0 = math.sqrt(sum(x * x for x in inp.start_velocity.tolist()))
     if v0 > vlim[0] * (1 + 1e-9):
         vlim = _brake_from_start(inp, tau, pos, vlim, v0)
-        path = replace(path, vlim=vlim, beta_max=_beta_max(path, vlim))
     try:
-        boundary = _boundary(inp, path.d1[0], path.d2[0], path.d1[-1], vlim[0], vlim[-1])
+        boundary = _boundary(inp, d1[0], d2[0], d1[-1], vlim[0], vlim[-1])
     except Infeasible as exc:
+        if not sample_path(traj, tau, vlim, a_max, d1, d2).moving:
+            return fallback(DEGENERATE)
         return fallback(str(exc))
 
+    more = NO_POINTS
     rounds = 0
     while True:
         rounds += 1
-        problem = build(path, inp.smoothness, boundary)
-        rch = reach(problem, certify=inp.smoothness == 0.0 and inp.solver.method == "fast")
-        if not rch.feasible:
-            return fallback(_infeasible(problem, path, inp, pos))
-        problem = _tighten(problem, rch)
-        if problem is None:
+        rnd = one_round(traj, tau, d1, d2, vlim, a_max, boundary, inp.smoothness, inp.solver,
+                        more)
+        path = rnd.path
+        if not path.moving:
+            return fallback(DEGENERATE)
+        if not rnd.reach.feasible:
+            return fallback(_infeasible(rnd.problem, path, inp, pos))
+        if rnd.tight is None:
             return fallback("the limits cannot be met (the problem is infeasible): they "
                             "force the vehicle to stand still on the way")
-        if rch.exact:
-            beta = rch.greedy
-            stats = SolverStats("Solved", 0, 0.0, 0.0, problem.objective(beta), "reachability")
-        else:
-            beta, stats = solve(problem, inp.solver, start=rch.greedy)
-            if beta is None:
-                return fallback(_explain(stats), stats)
+        rnd = finish(traj, rnd, inp.solver)
+        beta, stats, seen_limits = rnd.beta, rnd.stats, rnd.audit
+        if beta is None or seen_limits is None:
+            return fallback(_explain(stats), stats)
         # Constraint generation: a limit broken between the check points adds
         # check points there, then re-solve.
-        seen_limits = audit(traj, path, beta)
         if seen_limits.more is None or rounds == MAX_ROUNDS:
             break
-        path = path.with_points(traj, *seen_limits.more)
+        more = more_points(more, seen_limits.more)
     extras["solve_rounds"] = rounds
     problem_text = check_solution(seen_limits, path, beta, boundary)
     timemap = TimeMap(tau, beta)
@@ -127,62 +121,6 @@ def retime(inp: RetimeInput) -> RetimeResult:
     if vlim is not limit_before:
         warnings.append(_brake_note(inp, path, beta, limit_before, v0))
     return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, tuple(warnings))
-
-
-def _beta_max(path: PathSamples, vlim: FloatArray) -> FloatArray:
-    speed2 = np.einsum("ij,ij->i", path.d1, path.d1)
-    moving = speed2 > STILL**2
-    with np.errstate(divide="ignore"):
-        bound = np.where(moving, vlim**2 / np.maximum(speed2, STILL**2), np.inf)
-    cap = float(np.max(path.beta_max[~moving], initial=np.inf))
-    return np.minimum(bound, cap)
-
-
-def _tighten(problem: ChainProblem, rch: Reach) -> ChainProblem | None:
-    """Bounds tightened to the controllable sets (exact); nodes whose set is {0}
-    are fixed at rest. None when two neighbours must both stand still."""
-    free = ~problem.fixed
-    hi = np.where(free, np.minimum(problem.hi, rch.ku), problem.hi)
-    still = free & (hi <= 0.0)
-    fixed, value = problem.fixed, problem.value
-    if still.any():
-        fixed = fixed | still
-        value = np.where(still, 0.0, value)
-        zero = fixed & (value <= 0.0)
-        if np.any(zero[:-1] & zero[1:]):
-            return None
-    return replace(problem, hi=hi, fixed=fixed, value=value)
-
-
-@dataclass(frozen=True, eq=False)
-class Audit:
-    """The limits at a solution (:func:`audit`).
-
-    ``more``: the points ``(interval, fraction)`` between check points where a limit
-    is broken by more than :data:`REFINE_TOL`, or None; ``speed``: the largest speed
-    squared over its limit squared (nodes and check points); ``acc``: the largest
-    acceleration over its limit at the check points, on ``axis`` at check point
-    ``point``.
-    """
-
-    more: tuple[NDArray[np.int64], FloatArray] | None
-    speed: float
-    acc: float
-    axis: int
-    point: int
-
-
-def audit(traj: Trajectory, path: PathSamples, beta: FloatArray) -> Audit:
-    """Check ``beta`` at every node and check point, and probe the midpoint of every
-    gap between check points (one compiled pass, :func:`rota.kernels.path.audit`)."""
-    m = len(path.frac)
-    bad_i, bad_f = np.empty(m, dtype=np.int64), np.empty(m)
-    breaks, coefs = traj.pieces
-    n_bad, speed, acc, axis, point = kernels().audit(
-        np.ascontiguousarray(beta, dtype=float), path.tau, path.offsets, path.frac, path.cd1,
-        path.cd2, path.vlim, path.a_max, path.beta_max, breaks, coefs, REFINE_TOL, bad_i, bad_f)
-    more = (bad_i[:n_bad], bad_f[:n_bad]) if n_bad else None
-    return Audit(more, float(speed), float(acc), int(axis), int(point))
 
 
 def _brake_from_start(inp: RetimeInput, tau: FloatArray, pos: FloatArray, vlim: FloatArray,

@@ -63,12 +63,24 @@ def solve(problem: ChainProblem, settings: SolverSettings,
         beta, stats = solve_fast(problem, settings, start)
         if beta is not None:
             return beta, stats
-        beta, fallback = solve_clarabel(problem, settings)
-        note = f"fast solver: {stats.status} after {stats.iterations} iterations"
-        return beta, SolverStats(fallback.status, fallback.iterations, fallback.solve_time,
-                                 fallback.wall_time + stats.wall_time, fallback.objective,
-                                 fallback.method, note)
+        return hand_over(problem, settings, stats)
     return solve_clarabel(problem, settings)
+
+
+def hand_over(problem: ChainProblem, settings: SolverSettings,
+              failed: SolverStats) -> tuple[FloatArray | None, SolverStats]:
+    """Clarabel on ``problem`` after the fast solver did not converge (``failed``:
+    what it reported, which goes into the note)."""
+    beta, fallback = solve_clarabel(problem, settings)
+    note = f"fast solver: {failed.status} after {failed.iterations} iterations"
+    return beta, SolverStats(fallback.status, fallback.iterations, fallback.solve_time,
+                             fallback.wall_time + failed.wall_time, fallback.objective,
+                             fallback.method, note)
+
+
+def fast_status(code: int) -> str:
+    """The status name of the interior-point kernel's return ``code``."""
+    return _FAST_STATUS.get(int(code), f"code {code}")
 
 
 def solve_fast(problem: ChainProblem, settings: SolverSettings,
@@ -92,7 +104,7 @@ def solve_fast(problem: ChainProblem, settings: SolverSettings,
         wall = time.perf_counter() - t0
         return None, SolverStats(f"SolverError: {exc}", 0, wall, wall, float("nan"), "fast")
     wall = time.perf_counter() - t0
-    status = _FAST_STATUS.get(int(code), f"code {code}")
+    status = fast_status(code)
     stats = SolverStats(status, int(iters), wall, wall, float(obj), "fast")
     if status != "Solved":
         return None, stats

@@ -34,6 +34,9 @@ def exercise() -> None:
         model = UncertaintyModel(per_axis=per_axis, memory_s=DEFAULT_MEMORY_S)
         retime(RetimeInput(trajectory=spline, limits=limits, dtau=0.1,
                            safety=Safety(map=vmap, uncertainty=model)))
+    # the Clarabel path (and the audit after it), and an infeasible request
+    # (the forward pass that says where it fails)
     retime(RetimeInput(trajectory=spline, limits=limits, dtau=0.1,
-                       start_velocity=np.array([0.0, 0.0, 0.0]),
-                       solver=SolverSettings(fast_tol=1e-9)))
+                       solver=SolverSettings(method="clarabel")))
+    retime(RetimeInput(trajectory=samples, limits=Limits(1.5, 0.1), dtau=0.1,
+                       start_velocity=samples.evaluate([0.0])[1][0]))

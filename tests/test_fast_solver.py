@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+from dataclasses import replace
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
@@ -17,6 +18,7 @@ from rota.chain import Boundary, build, reach
 from rota.checkpoints import sample_path
 from rota.path import evaluate
 from rota.problem import SolverSettings, make_grid
+from rota.rounds import audit, finish, one_round
 from rota.solver import solve, solve_clarabel, solve_fast
 from tests.strategies import bspline, limits, sampled, trajectories
 
@@ -81,6 +83,107 @@ def test_infeasible_verdicts_agree():
     problem = chain_problem(traj, lim, 0.5, 60, start_share=1.0)
     assert not reach(problem).feasible
     agree(problem)
+
+
+def _staged(traj, tau, d1, d2, vlim, lim, boundary, lam, more):
+    """A round step by step, the tightening written out in numpy."""
+    path = sample_path(traj, tau, vlim, lim.a_max_vec, d1, d2)
+    if len(more[0]):
+        interval = np.concatenate([path.interval, more[0]])
+        frac = np.concatenate([path.frac, more[1]])
+        key = interval * 2.0 + frac
+        order = np.argsort(key, kind="stable")
+        keep = np.concatenate([[True], np.diff(key[order]) > 1e-12])
+        interval, frac = interval[order][keep], frac[order][keep]
+        offsets = np.zeros(len(tau), dtype=np.int64)
+        np.cumsum(np.bincount(interval, minlength=len(tau) - 1), out=offsets[1:])
+        _, c1, c2 = evaluate(traj, tau[interval] + frac * (tau[1] - tau[0]))
+        path = replace(path, offsets=offsets, frac=frac, cd1=c1, cd2=c2)
+    problem = build(path, lam, boundary)
+    rch = reach(problem, certify=lam == 0.0)
+    if not path.moving or not rch.feasible:
+        return path, problem, rch, None, None
+    free = ~problem.fixed
+    hi = np.where(free, np.minimum(problem.hi, rch.ku), problem.hi)
+    still = free & (hi <= 0.0)
+    fixed = problem.fixed | still
+    value = np.where(still, 0.0, problem.value)
+    zero = fixed & (value <= 0.0)
+    if still.any() and np.any(zero[:-1] & zero[1:]):
+        return path, problem, rch, None, None
+    tight = replace(problem, hi=hi, fixed=fixed, value=value)
+    beta = rch.greedy if rch.exact else solve_fast(tight, SolverSettings(), start=rch.greedy)[0]
+    return path, problem, rch, tight, beta
+
+
+@settings(deadline=None, max_examples=40, suppress_health_check=[HealthCheck.too_slow])
+@given(traj=trajectories(), lim=limits(), n=st.integers(8, 150),
+       lam=st.sampled_from([0.0, 0.5]), share=st.floats(0.0, 1.0),
+       more=st.lists(st.tuples(st.integers(0, 149), st.floats(0.0, 1.0)), max_size=6))
+def test_compiled_round_is_the_steps_one_by_one(traj, lim, n, lam, share, more):
+    """rota.rounds.one_round (one compiled call) gives exactly what the steps give
+    one by one: check points (with points added by an earlier audit, sorted, a
+    duplicate dropped), rows, reachability, the tightened bounds, the fast solver's
+    answer and its audit."""
+    tau = make_grid(traj, traj.duration / n)
+    _, d1, d2 = evaluate(traj, tau)
+    s = float(np.linalg.norm(d1[0]))
+    boundary = Boundary(beta_start=(share * lim.v_max / s) ** 2 if s > 1e-6 else None,
+                        beta_end=0.0 if np.linalg.norm(d1[-1]) > 1e-6 else None)
+    more = [(i % (len(tau) - 1), f) for i, f in more]
+    more = (np.array([i for i, _ in more] + [i for i, _ in more[:1]], dtype=np.int64),
+            np.array([f for _, f in more] + [f for _, f in more[:1]]))  # one twice
+    vlim = np.full(len(tau), lim.v_max)
+    rnd = one_round(traj, tau, d1, d2, vlim, lim.a_max_vec, boundary, lam, SolverSettings(),
+                    more)
+    path, problem, rch, tight, beta = _staged(traj, tau, d1, d2, vlim, lim, boundary, lam, more)
+    for name in ("offsets", "frac", "cd1", "cd2", "beta_max"):
+        assert np.array_equal(getattr(rnd.path, name), getattr(path, name)), name
+    assert rnd.path.moving == path.moving
+    for name in ("fixed", "value", "rptr", "rk", "ra", "rc", "rkind", "rpoint"):
+        assert np.array_equal(getattr(rnd.problem, name), getattr(problem, name)), name
+    assert (rnd.reach.fail_node, rnd.reach.fail_row) == (rch.fail_node, rch.fail_row)
+    if not path.moving:
+        return
+    assert rnd.reach.exact == rch.exact and np.array_equal(rnd.reach.greedy, rch.greedy)
+    assert (rnd.tight is None) == (tight is None)
+    if tight is None:
+        return
+    for name in ("hi", "fixed", "value"):
+        assert np.array_equal(getattr(rnd.tight, name), getattr(tight, name)), name
+    assert (rnd.beta is None) == (beta is None)
+    if beta is not None:
+        assert np.array_equal(rnd.beta, beta)
+        seen = audit(traj, path, beta)
+        assert (rnd.audit.speed, rnd.audit.acc, rnd.audit.axis, rnd.audit.point) == (
+            seen.speed, seen.acc, seen.axis, seen.point)
+        assert (rnd.audit.more is None) == (seen.more is None)
+        if seen.more is not None:
+            assert all(np.array_equal(a, b) for a, b in zip(rnd.audit.more, seen.more,
+                                                            strict=True))
+
+
+def test_round_hands_over_to_clarabel():
+    """A round whose interior-point method does not converge is finished by
+    Clarabel, and the answer says so; with Clarabel chosen the round leaves the
+    solve to it."""
+    traj = bspline(2, 6, 1.0)
+    lim = Limits(2.0, 2.0)
+    tau = make_grid(traj, traj.duration / 80)
+    _, d1, d2 = evaluate(traj, tau)
+    vlim = np.full(len(tau), lim.v_max)
+    args = (traj, tau, d1, d2, vlim, lim.a_max_vec, Boundary(), 0.5)
+    stuck = one_round(*args, SolverSettings(max_iter=1))
+    assert stuck.beta is None and stuck.stats.status == "MaxIterations"
+    done = finish(traj, stuck, SolverSettings(max_iter=1))
+    assert done.stats.method == "clarabel" and "fast solver: MaxIterations" in done.stats.note
+    fast = one_round(*args, SolverSettings())
+    left = one_round(*args, SolverSettings(method="clarabel"))
+    assert left.beta is None and left.stats is None
+    ref = finish(traj, left, SolverSettings(method="clarabel"))
+    assert ref.stats.method == "clarabel"
+    assert abs(fast.problem.objective(fast.beta) - ref.problem.objective(ref.beta)) <= (
+        1e-5 * ref.problem.objective(ref.beta))
 
 
 def test_solver_choice_and_handover():

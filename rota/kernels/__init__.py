@@ -1,7 +1,7 @@
 """numba-compiled kernels of the re-timer; load them through :func:`rota.jit.kernels`
 (which chooses the on-disk cache first), not by importing this package directly."""
 
-from rota.kernels.chain import build_rows
+from rota.kernels.chain import boundary_nodes, build_rows
 from rota.kernels.chance import assess_nodes, braking_points, chance_limits, memory_caps
 from rota.kernels.ipm import ipm_solve
 from rota.kernels.nearest import bricks_build, bricks_query
@@ -13,8 +13,10 @@ from rota.kernels.path import (
     sample,
     time_map,
 )
-from rota.kernels.reach import forward_reachable, passes
+from rota.kernels.reach import forward_reachable, passes, tighten
+from rota.kernels.rounds import one_round
 
-__all__ = ["assess_nodes", "audit", "braking_points", "bricks_build", "bricks_query",
-           "bspline_pieces", "build_rows", "chance_limits", "eval_pieces", "forward_reachable",
-           "ipm_solve", "memory_caps", "passes", "piece_edges", "sample", "time_map"]
+__all__ = ["assess_nodes", "audit", "boundary_nodes", "braking_points", "bricks_build",
+           "bricks_query", "bspline_pieces", "build_rows", "chance_limits", "eval_pieces",
+           "forward_reachable", "ipm_solve", "memory_caps", "one_round", "passes",
+           "piece_edges", "sample", "tighten", "time_map"]

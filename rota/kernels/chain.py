@@ -148,3 +148,21 @@ def build_rows(h, offsets, frac, cd1, cd2, vlim, a_max, hi, prune):
         rptr[i + 1] += rptr[i]
     return (r_int[:out].copy(), r_a[:out].copy(), r_c[:out].copy(), r_kind[:out].copy(),
             r_pt[:out].copy(), rptr)
+
+
+@njit
+def boundary_nodes(n, h, beta_start, alpha_start, beta_end):
+    """``(fixed, value)`` of the ``n`` nodes from the boundary equalities (NaN: free);
+    a start acceleration also fixes ``beta_1 = beta_0 + 2 h alpha_0`` (at least 0)."""
+    fixed = np.zeros(n, np.bool_)
+    value = np.zeros(n)
+    if not np.isnan(beta_start):
+        fixed[0] = True
+        value[0] = beta_start
+        if not np.isnan(alpha_start):
+            fixed[1] = True
+            value[1] = max(beta_start + 2.0 * h * alpha_start, 0.0)
+    if not np.isnan(beta_end):
+        fixed[n - 1] = True
+        value[n - 1] = beta_end
+    return fixed, value

@@ -365,16 +365,60 @@ def time_map(tau, beta, beta_out, t, alpha):
 
 
 @njit
-def sample(breaks, coefs, t0, t1, tau, parts, piece_parts, d1, vlim, still, cap_factor):
+def with_points(tau, offsets, frac, interval, more):
+    """The check points ``offsets``, ``frac`` with the points ``(interval, more)``
+    added, sorted by interval and fraction; a point closer than 1e-12 (in
+    fractions of an interval) to the previous one of its interval is dropped.
+    Returns ``(offsets, frac, at)`` as :func:`check_points` does."""
+    n = offsets.shape[0] - 1
+    m0 = frac.shape[0]
+    total = m0 + more.shape[0]
+    key = np.empty(total)
+    idx = np.empty(total, np.int64)
+    fr = np.empty(total)
+    for i in range(n):
+        for q in range(offsets[i], offsets[i + 1]):
+            idx[q] = i
+            fr[q] = frac[q]
+    for q in range(more.shape[0]):
+        idx[m0 + q] = interval[q]
+        fr[m0 + q] = more[q]
+    for q in range(total):
+        key[q] = idx[q] * 2.0 + fr[q]
+    order = np.argsort(key, kind="mergesort")
+    h = tau[1] - tau[0]
+    new_off = np.zeros(n + 1, np.int64)
+    new_frac = np.empty(total)
+    at = np.empty(total)
+    out = 0
+    for r in range(total):
+        q = order[r]
+        if out > 0 and key[q] - key[order[r - 1]] <= 1e-12:
+            continue
+        new_frac[out] = fr[q]
+        at[out] = tau[idx[q]] + fr[q] * h
+        new_off[idx[q] + 1] += 1
+        out += 1
+    for i in range(n):
+        new_off[i + 1] += new_off[i]
+    return new_off, new_frac[:out].copy(), at[:out].copy()
+
+
+@njit
+def sample(breaks, coefs, t0, t1, tau, parts, piece_parts, d1, vlim, still, cap_factor,
+           interval, more):
     """The check points of the grid ``tau`` (see :func:`check_points`; the pieces'
-    ends from ``breaks`` within ``[t0, t1]``), the path's derivatives there, and
-    the speed bound of every node (:func:`beta_bounds`).
+    ends from ``breaks`` within ``[t0, t1]``) and the points ``(interval, more)``
+    added after earlier rounds (:func:`with_points`), the path's derivatives
+    there, and the speed bound of every node (:func:`beta_bounds`).
 
     Returns ``(offsets, frac, cd1, cd2, beta_max, moving)``; ``moving``: some node or
     check point has a component of ``sigma'`` above ``still``.
     """
     edges = piece_edges(breaks, t0, t1)
     offsets, frac, at = check_points(tau, edges, parts, piece_parts)
+    if more.shape[0]:
+        offsets, frac, at = with_points(tau, offsets, frac, interval, more)
     m = at.shape[0]
     pos = np.empty((m, 3))
     cd1 = np.empty((m, 3))

@@ -215,3 +215,27 @@ def passes(lo, hi, fixed, value, rptr, ra, rc, certify, tol, kl, ku, greedy):
         if not greedy[i] >= ru[i] * (1.0 - tol):
             return node, row, False
     return node, row, True
+
+
+@njit
+def tighten(hi, fixed, value, ku):
+    """The bounds of the free nodes tightened to the controllable sets ``ku`` (exact);
+    a node whose set is {0} is fixed at rest. Returns ``(hi, fixed, value, ok)``,
+    new arrays; ``ok`` is False when two neighbours must both stand still."""
+    n = hi.shape[0]
+    hi_t = hi.copy()
+    fixed_t = fixed.copy()
+    value_t = value.copy()
+    still = False
+    for i in range(n):
+        if not fixed[i]:
+            hi_t[i] = min(hi[i], ku[i])
+            if hi_t[i] <= 0.0:
+                fixed_t[i] = True
+                value_t[i] = 0.0
+                still = True
+    if still:
+        for i in range(n - 1):
+            if (fixed_t[i] and value_t[i] <= 0.0) and (fixed_t[i + 1] and value_t[i + 1] <= 0.0):
+                return hi_t, fixed_t, value_t, False
+    return hi_t, fixed_t, value_t, True
