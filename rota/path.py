@@ -22,3 +22,13 @@ def evaluate(trajectory: Trajectory, tau: FloatArray) -> tuple[FloatArray, Float
     p, d1, d2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
     kernels().eval_pieces(breaks, coefs, x, p, d1, d2)
     return p, d1, d2
+
+
+def on_grid(trajectory: Trajectory, n: int) -> tuple[FloatArray, FloatArray, FloatArray,
+                                                     FloatArray]:
+    """``(tau, position, sigma', sigma'')``: the grid of ``n`` intervals of
+    :func:`rota.problem.make_grid` (the same numbers) and the path there, in one
+    compiled call."""
+    breaks, coefs = trajectory.pieces
+    t0, t1 = trajectory.domain
+    return kernels().grid_path(breaks, coefs, t0, t1, n)

@@ -184,7 +184,13 @@ def make_grid(trajectory: Trajectory, dtau: float) -> FloatArray:
     and the step is ``T / N`` so the grid ends exactly at the trajectory's end.
     """
     t0, t1 = trajectory.domain
-    n = max(MIN_INTERVALS, math.ceil((t1 - t0) / dtau - 1e-9))
+    n = grid_intervals(trajectory, dtau)
     tau = np.arange(n + 1) * ((t1 - t0) / n) + t0  # as numpy's linspace, without its overhead
     tau[-1] = t1
     return tau
+
+
+def grid_intervals(trajectory: Trajectory, dtau: float) -> int:
+    """``N``, the number of intervals of :func:`make_grid`."""
+    t0, t1 = trajectory.domain
+    return max(MIN_INTERVALS, math.ceil((t1 - t0) / dtau - 1e-9))

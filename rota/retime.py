@@ -11,8 +11,8 @@ from numpy.typing import NDArray
 
 from rota.chain import Boundary, ChainProblem, describe
 from rota.checkpoints import NO_POINTS, STILL, PathSamples, sample_path
-from rota.path import evaluate
-from rota.problem import RetimeInput, make_grid
+from rota.path import on_grid
+from rota.problem import RetimeInput, grid_intervals
 from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
 from rota.robust import assess
 from rota.rounds import Audit, finish, more_points, one_round
@@ -47,8 +47,7 @@ def retime(inp: RetimeInput) -> RetimeResult:
     exactly and, at lambda = 0, often the optimum itself.
     """
     traj = inp.trajectory
-    tau = make_grid(traj, inp.dtau)
-    pos, d1, d2 = evaluate(traj, tau)
+    tau, pos, d1, d2 = on_grid(traj, grid_intervals(traj, inp.dtau))
     vlim = np.full(len(tau), inp.limits.v_max)
     if inp.speed_limits is not None:
         vlim = np.minimum(vlim, inp.speed_limits)

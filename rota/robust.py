@@ -116,18 +116,17 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
         position, velocity, _ = trajectory.evaluate(tau)
     p, d1 = position, velocity
     margin = max(2.0, safety.braking.d_th)
-    distance, obstacle = safety.map.nearest_of(np.ascontiguousarray(p, dtype=float), margin)
-    n = len(tau)
+    p = np.ascontiguousarray(p, dtype=float)
     bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
     # (a writable copy: the kernel is compiled for writable arrays)
     box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)
     unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
-    flags, values = np.empty((5, n), dtype=bool), np.empty((3, n))
-    starts, ends = kernels().assess_nodes(
-        p, d1, distance, obstacle, safety.braking.d_th, horizon_of(safety.braking),
-        *kernel_args(safety.uncertainty, safety.chance), float(safety.uncertainty.memory_s),
+    distance, obstacle, flags, values, starts, ends = kernels().assess_path(
+        p, d1, *safety.map.query_args(p, margin), safety.braking.d_th,
+        horizon_of(safety.braking), *kernel_args(safety.uncertainty, safety.chance),
+        float(safety.uncertainty.memory_s),
         max(safety.braking.d_th, max(safety.chance.semi_axes)), box[0], box[1],
-        float(unknown), flags, values)
+        float(unknown))
     mask, infeasible, approach, collision, outside = flags
     limit, unclamped, limits = values
     zones = zones_from(tau, mask, starts, ends, distance, obstacle, safety.braking)

@@ -34,9 +34,7 @@ class TimeMap:
         from rota.jit import kernels  # noqa: PLC0415 - the kernels load lazily
 
         tau = np.ascontiguousarray(self.tau, dtype=float)
-        n = len(tau)
-        beta, t, alpha = np.empty(n), np.empty(n), np.empty(max(n - 1, 0))
-        kernels().time_map(tau, np.ascontiguousarray(self.beta, dtype=float), beta, t, alpha)
+        beta, t, alpha = kernels().time_map(tau, np.ascontiguousarray(self.beta, dtype=float))
         object.__setattr__(self, "tau", tau)
         object.__setattr__(self, "beta", beta)
         object.__setattr__(self, "t", t)

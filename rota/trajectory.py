@@ -136,9 +136,12 @@ class Trajectory(KeepsReadOnly):
         ``[breaks[j], breaks[j + 1]]``. Made once and kept."""
         cached = self.__dict__.get("_pieces")
         if cached is None:
-            cached = _pieces_of(self._spline)
+            cached = self._make_pieces()
             object.__setattr__(self, "_pieces", cached)
         return cached
+
+    def _make_pieces(self) -> tuple[FloatArray, FloatArray]:
+        return _pieces_of(self._spline)
 
 
 def _writable(a: FloatArray) -> FloatArray:
@@ -153,14 +156,14 @@ def _pieces_of(spline: object) -> tuple[FloatArray, FloatArray]:
     """Taylor coefficients of every piece of a scipy spline (read-only arrays)."""
     if isinstance(spline, interpolate.BPoly):
         spline = interpolate.PPoly.from_bernstein_basis(spline)
-    if isinstance(spline, interpolate.PPoly):
-        breaks = np.asarray(spline.x, dtype=float)
-        coefs = np.ascontiguousarray(np.transpose(spline.c[::-1], (1, 0, 2)), dtype=float)
-    else:  # BSpline: derivatives at the start of every non-empty knot span (compiled)
-        # (the kernel is compiled for writable C arrays; a spline made from a decoded
-        # message may hold read-only ones: those are copied)
-        breaks, coefs = kernels().bspline_pieces(_writable(spline.t), _writable(spline.c),
-                                                 int(spline.k))
+    if not isinstance(spline, interpolate.PPoly):
+        raise TypeError(f"no polynomial pieces for {type(spline).__name__}")
+    breaks = np.asarray(spline.x, dtype=float)
+    coefs = np.ascontiguousarray(np.transpose(spline.c[::-1], (1, 0, 2)), dtype=float)
+    return _read_only(breaks, coefs)
+
+
+def _read_only(breaks: FloatArray, coefs: FloatArray) -> tuple[FloatArray, FloatArray]:
     # A zero-length piece (repeated break) is never selected; keep shapes consistent.
     breaks = np.ascontiguousarray(breaks, dtype=float)
     breaks.setflags(write=False)
@@ -218,6 +221,14 @@ class BSplineTrajectory(Trajectory):
         object.__setattr__(self, "_knot_vector", knots)
         object.__setattr__(self, "_domain", (float(knots[k]), float(knots[n])))
         self._set_spline(interpolate.BSpline(knots, cps, k, extrapolate=False))
+
+    def _make_pieces(self) -> tuple[FloatArray, FloatArray]:
+        # derivatives at the start of every non-empty knot span (compiled), from the
+        # trajectory's own arrays (scipy's accessors cost more than the kernel); the
+        # kernel is compiled for writable C arrays, so read-only ones are copied
+        return _read_only(*kernels().bspline_pieces(
+            _writable(self._knot_vector), _writable(self.control_points),  # type: ignore[attr-defined]
+            int(self.degree)))
 
     @property
     def knot_vector(self) -> FloatArray:

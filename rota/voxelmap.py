@@ -161,6 +161,11 @@ class _Bricks:
         return cls(lo, dims, size, start, pts, box)
 
 
+#: The index of no centres (an empty map, or none near the points).
+_EMPTY = _Bricks(np.zeros(3, dtype=np.int64), np.ones(3, dtype=np.int64), BRICK,
+                 np.zeros(2, dtype=np.int64), np.zeros((0, 3)), np.zeros((1, 6)))
+
+
 @dataclass(frozen=True, eq=False)
 class VoxelMap(KeepsReadOnly):
     """Occupied voxels of an occupancy map (ENU, metres).
@@ -335,31 +340,33 @@ class VoxelMap(KeepsReadOnly):
         """:meth:`nearest` without checking its arguments: ``pts`` a finite C float
         array ``(m, 3)``, ``margin`` a float >= 0 (the re-timer's own queries)."""
         m = pts.shape[0]
-        dist = np.full(m, np.inf)
-        obst = np.full((m, 3), np.nan)
-        if m == 0 or len(self) == 0:
-            return dist, obst
+        dist, obst = np.empty(m), np.empty((m, 3))
+        kernels().bricks_query(pts, *self.query_args(pts, margin), dist, obst)
+        return dist, obst
+
+    def query_args(self, pts: FloatArray, margin: float) -> tuple:
+        """The map's arguments of :func:`rota.kernels.nearest.bricks_query` for the
+        points ``pts`` within ``margin``: origin, resolution, the index's arrays and
+        the squared search radius."""
+        index = _EMPTY
         if len(self) <= INDEX_CACHE_LIMIT:
             # Replans query the same map again and again: one index over the whole
             # map, built on first use and kept, answers exactly like the cropped one of
             # Alg. 1 (results are cut at the same margin) without rebuilding it.
             index = self.__dict__.get("_bricks")
             if index is None:
-                index = _Bricks.of(self.indices, self.occupied)
+                index = _Bricks.of(self.indices, self.occupied) if len(self) else _EMPTY
                 object.__setattr__(self, "_bricks", index)
-        else:
+        elif pts.shape[0]:
             lo = pts.min(axis=0) - margin
             hi = pts.max(axis=0) + margin
             occ = self.occupied
             inside = np.all((occ >= lo) & (occ <= hi), axis=1)
-            if not inside.any():
-                return dist, obst
-            index = _Bricks.of(self.indices[inside], occ[inside])
+            if inside.any():
+                index = _Bricks.of(self.indices[inside], occ[inside])
         bound = margin * (1 + 1e-12)
-        kernels().bricks_query(pts, self.origin, self.resolution, index.lo, index.dims,
-                               index.size, index.start, index.pts, index.box, bound * bound,
-                               dist, obst)
-        return dist, obst
+        return (self.origin, self.resolution, index.lo, index.dims, index.size, index.start,
+                index.pts, index.box, bound * bound)
 
     # -------------------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:

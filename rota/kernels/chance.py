@@ -5,6 +5,7 @@ the model and the closed form)."""
 import numpy as np
 
 from rota.kernels._njit import njit
+from rota.kernels.nearest import bricks_query
 
 
 @njit
@@ -240,3 +241,23 @@ def assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot,
         if out and unknown < node_limit[q]:
             node_limit[q] = unknown
     return starts, ends
+
+
+@njit
+def assess_path(pos, vel, origin, res, lo, dims, size, start, pts, box, bound2, d_th, horizon,
+                inv_axes, point_robot, obs_var, z, m, b, fl, per_axis, v_floor, v_max,
+                memory_s, near, box_lo, box_hi, unknown):
+    """The nearest occupied centre to every node (:func:`rota.kernels.nearest.bricks_query`
+    on the index ``lo`` .. ``box``, within ``sqrt(bound2)``), then
+    :func:`assess_nodes`, in one call. Returns ``(dist, obstacle, flags, values,
+    starts, ends)``."""
+    n = pos.shape[0]
+    dist = np.empty(n)
+    obstacle = np.empty((n, 3))
+    bricks_query(pos, origin, res, lo, dims, size, start, pts, box, bound2, dist, obstacle)
+    flags = np.empty((5, n), np.bool_)
+    values = np.empty((3, n))
+    starts, ends = assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot,
+                                obs_var, z, m, b, fl, per_axis, v_floor, v_max, memory_s, near,
+                                box_lo, box_hi, unknown, flags, values)
+    return dist, obstacle, flags, values, starts, ends

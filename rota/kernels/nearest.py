@@ -76,6 +76,11 @@ def bricks_query(points, origin, res, lo, dims, size, start, pts, box, bound2, d
     its distance into ``dist`` and coordinates into ``obst`` (``inf`` / NaN where
     none). Returns how many points found one."""
     found = 0
+    if pts.shape[0] == 0:  # no centres: nothing is near
+        for q in range(points.shape[0]):
+            dist[q] = np.inf
+            obst[q, 0] = obst[q, 1] = obst[q, 2] = np.nan
+        return found
     have_prev = False
     px = 0.0
     py = 0.0

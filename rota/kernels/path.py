@@ -61,6 +61,24 @@ def eval_pieces(breaks, coefs, tau, pos, d1, d2):
 
 
 @njit
+def grid_path(breaks, coefs, t0, t1, n):
+    """The grid of ``n`` equal intervals over ``[t0, t1]`` (the numbers
+    :func:`rota.problem.make_grid` makes: ``i * step + t0``, the last node ``t1``)
+    and the path's position and first two derivatives there (:func:`eval_pieces`).
+    Returns ``(tau, pos, d1, d2)``."""
+    tau = np.empty(n + 1)
+    step = (t1 - t0) / n
+    for i in range(n + 1):
+        tau[i] = i * step + t0
+    tau[n] = t1
+    pos = np.empty((n + 1, 3))
+    d1 = np.empty((n + 1, 3))
+    d2 = np.empty((n + 1, 3))
+    eval_pieces(breaks, coefs, tau, pos, d1, d2)
+    return tau, pos, d1, d2
+
+
+@njit
 def check_points(tau, edges, parts, piece_parts):
     """Check points of every interval of the grid ``tau`` (uniform step), sorted by
     interval and fraction: both ends of every interval, every inner piece end
@@ -349,12 +367,15 @@ def piece_edges(breaks, t0, t1):
 
 
 @njit
-def time_map(tau, beta, beta_out, t, alpha):
-    """The time mapping of ``beta`` on ``tau`` (paper Eqs. 18-20): ``beta_out`` the
-    non-negative ``beta``, ``t`` the real time of every node (each interval lasts
-    ``2 h / (sqrt(beta_i) + sqrt(beta_{i+1}))``), ``alpha`` every interval's
+def time_map(tau, beta):
+    """The time mapping of ``beta`` on ``tau`` (paper Eqs. 18-20): ``(beta_out, t,
+    alpha)``, the non-negative ``beta``, the real time of every node (each interval
+    lasts ``2 h / (sqrt(beta_i) + sqrt(beta_{i+1}))``) and every interval's
     ``tau_ddot``."""
     n = tau.shape[0]
+    beta_out = np.empty(n)
+    t = np.empty(n)
+    alpha = np.empty(max(n - 1, 0))
     for i in range(n):
         beta_out[i] = max(beta[i], 0.0)
     t[0] = 0.0
@@ -362,6 +383,7 @@ def time_map(tau, beta, beta_out, t, alpha):
         h = tau[i + 1] - tau[i]
         t[i + 1] = t[i] + 2.0 * h / (np.sqrt(beta_out[i]) + np.sqrt(beta_out[i + 1]))
         alpha[i] = (beta_out[i + 1] - beta_out[i]) / (2.0 * h)
+    return beta_out, t, alpha
 
 
 @njit
