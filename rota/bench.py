@@ -227,7 +227,7 @@ def peak_memory(inp: RetimeInput) -> tuple[float, float]:
     return peak / 2**20, (rss1 - rss0) / 1024
 
 
-REF_FINE = np.linspace(0.0, 1.0, 41)  # includes ROTA's 1/8 points and 0.1 s knots at 0.5 s
+REF_FINE = np.linspace(0.0, 1.0, 41)  # includes the 0.1 s knots at dtau 0.5 s
 REF_DENSE = np.linspace(0.0, 1.0, 9)
 REF_SPARSE = np.array([0.0, 0.5, 1.0])
 PEER_FRACTIONS = np.array([0.0, 0.5, 1.0])

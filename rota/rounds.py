@@ -107,7 +107,8 @@ def one_round(traj: Trajectory, tau: FloatArray, d1: FloatArray, d2: FloatArray,
     "fast"`` the interior-point solve and its audit, in one compiled call.
     ``d1``, ``d2``: the path's derivatives at the nodes. At lambda = 0 the
     reachability pass may certify the greedy profile time-optimal; then no solver
-    runs."""
+    runs. The fast solver's stats give the time of the whole compiled call (the
+    solve inside it cannot be timed apart)."""
     fast = settings.method == "fast"
     certify = smoothness == 0.0 and fast
     breaks, coefs = traj.pieces
