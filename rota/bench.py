@@ -144,10 +144,11 @@ def solver_alone(rnd: Any, settings: SolverSettings) -> float:
     0 when reachability alone gave the answer."""
     from rota.solver import solve
 
-    if rnd is None or rnd.tight is None or rnd.stats is None or rnd.stats.iterations == 0:
+    if rnd is None or not rnd.ok or rnd.stats is None or rnd.stats.iterations == 0:
         return 0.0
+    tight = rnd.tight
     t0 = time.perf_counter()
-    solve(rnd.tight, settings, start=rnd.reach.greedy)
+    solve(tight, settings, start=rnd.greedy)
     return time.perf_counter() - t0
 
 

@@ -11,7 +11,7 @@ bound a polygon in the plane of its two nodes; only its edges are kept).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -79,10 +79,17 @@ class ChainProblem:
 
     def objective(self, beta: FloatArray) -> float:
         """Duration plus the smoothness term (paper Eqs. 21, 25)."""
-        r = np.sqrt(np.maximum(beta, 0.0))
-        with np.errstate(divide="ignore"):
-            t = float(np.sum(2 * self.h / (r[:-1] + r[1:])))
-        return t + self.smoothness / (4 * self.h) * float(np.sum(np.diff(beta) ** 2))
+        return objective_of(self.tau, self.smoothness, beta)
+
+
+def objective_of(tau: FloatArray, smoothness: float, beta: FloatArray) -> float:
+    """Duration plus the smoothness term (paper Eqs. 21, 25) of ``beta`` on the
+    uniform grid ``tau``."""
+    h = float(tau[1] - tau[0])
+    r = np.sqrt(np.maximum(beta, 0.0))
+    with np.errstate(divide="ignore"):
+        t = float(np.sum(2 * h / (r[:-1] + r[1:])))
+    return t + smoothness / (4 * h) * float(np.sum(np.diff(beta) ** 2))
 
 
 def build(path: PathSamples, smoothness: float, boundary: Boundary) -> ChainProblem:
@@ -137,6 +144,16 @@ def reach(problem: ChainProblem, certify: bool = False) -> Reach:
     return Reach(kl, ku, greedy, int(node), int(row), bool(exact))
 
 
+def tighten(problem: ChainProblem, rch: Reach) -> ChainProblem | None:
+    """Bounds tightened to the controllable sets of ``rch`` (exact); nodes whose set
+    is {0} are fixed at rest. None when infeasible, or when two neighbours must
+    both stand still (:func:`rota.kernels.reach.tighten`)."""
+    if not rch.feasible:
+        return None
+    hi, fixed, value, ok = kernels().tighten(problem.hi, problem.fixed, problem.value, rch.ku)
+    return replace(problem, hi=hi, fixed=fixed, value=value) if ok else None
+
+
 def describe(problem: ChainProblem, path: PathSamples, start_speed: float,
              end_speed: float, arclength: FloatArray) -> str:
     """Why the problem is infeasible, in words: where, and which limit.
@@ -175,4 +192,5 @@ def describe(problem: ChainProblem, path: PathSamples, start_speed: float,
             f"faster, above the speed limit {limit:.2f} m/s there")
 
 
-__all__ = ["Boundary", "ChainProblem", "Reach", "build", "describe", "reach"]
+__all__ = ["Boundary", "ChainProblem", "Reach", "build", "describe", "objective_of", "reach",
+           "tighten"]

@@ -96,9 +96,9 @@ def retime(inp: RetimeInput) -> RetimeResult:
         path = rnd.path
         if not path.moving:
             return fallback(DEGENERATE)
-        if not rnd.reach.feasible:
+        if not rnd.feasible:
             return fallback(_infeasible(rnd.problem, path, inp, pos))
-        if rnd.tight is None:
+        if not rnd.ok:
             return fallback("the limits cannot be met (the problem is infeasible): they "
                             "force the vehicle to stand still on the way")
         rnd = finish(traj, rnd, inp.solver)

@@ -13,12 +13,22 @@ trouble, stay in Python (:func:`finish`).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.chain import CERTIFY_TOL, PRUNE_ROWS, Boundary, ChainProblem, Reach
+from rota.chain import (
+    CERTIFY_TOL,
+    PRUNE_ROWS,
+    Boundary,
+    ChainProblem,
+    build,
+    objective_of,
+    reach,
+    tighten,
+)
 from rota.checkpoints import (
     BETA_CAP_FACTOR,
     NO_POINTS,
@@ -80,21 +90,43 @@ def _audit(n_bad: int, bad_i: IntArray, bad_f: FloatArray, speed: float, acc: fl
 class Round:
     """What a round found.
 
-    ``path``: the check points; ``problem``: the chain problem as built (bounds
-    from the speed limits); ``reach``: its reachability; ``tight``: the problem
-    with the bounds tightened to the controllable sets, None when infeasible or
-    when two neighbours must both stand still (``reach.feasible`` tells which);
-    ``beta``, ``stats``, ``audit``: the answer, how it was found and its audit,
-    None until :func:`finish` (or the compiled solve) found one.
+    ``path``: the check points; ``greedy``: the greedy profile of reachability;
+    ``fail_node``, ``fail_row``: where the problem became infeasible (-1:
+    feasible, see :class:`rota.chain.Reach`); ``exact``: the greedy profile is
+    certified time-optimal; ``ok``: feasible, and tightening the bounds to the
+    controllable sets leaves no two neighbours standing still; ``beta``,
+    ``stats``, ``audit``: the answer, how it was found and its audit, None until
+    :func:`finish` (or the compiled solve) found one. :attr:`problem` and
+    :attr:`tight` are made again from ``path`` when asked for (the rare paths:
+    an infeasible request's diagnosis, Clarabel), with the same kernels.
     """
 
     path: PathSamples
-    problem: ChainProblem
-    reach: Reach
-    tight: ChainProblem | None
+    smoothness: float
+    boundary: Boundary
+    greedy: FloatArray
+    fail_node: int
+    fail_row: int
+    exact: bool
+    ok: bool
     beta: FloatArray | None = None
     stats: SolverStats | None = None
     audit: Audit | None = None
+
+    @property
+    def feasible(self) -> bool:
+        return self.fail_node < 0
+
+    @cached_property
+    def problem(self) -> ChainProblem:
+        """The chain problem as built (bounds from the speed limits)."""
+        return build(self.path, self.smoothness, self.boundary)
+
+    @cached_property
+    def tight(self) -> ChainProblem | None:
+        """:attr:`problem` with the bounds tightened to the controllable sets; None
+        unless :attr:`ok`."""
+        return tighten(self.problem, reach(self.problem)) if self.ok else None
 
 
 def one_round(traj: Trajectory, tau: FloatArray, d1: FloatArray, d2: FloatArray,
@@ -115,7 +147,7 @@ def one_round(traj: Trajectory, tau: FloatArray, d1: FloatArray, d2: FloatArray,
     t0, t1 = traj.domain
     h = float(tau[1] - tau[0])
     start = time.perf_counter()
-    p, c, r, s, a = kernels().one_round(
+    p, r, s, a = kernels().one_round(
         breaks, coefs, t0, t1, tau, d1, vlim, a_max, uniform_parts(h), PIECE_PARTS, STILL,
         BETA_CAP_FACTOR, more[0], more[1], smoothness, *boundary.as_nan(), PRUNE_ROWS,
         certify, CERTIFY_TOL, fast, START_SHARE, START_CAP, settings.fast_tol,
@@ -123,40 +155,33 @@ def one_round(traj: Trajectory, tau: FloatArray, d1: FloatArray, d2: FloatArray,
     wall = time.perf_counter() - start
     offsets, frac, cd1, cd2, beta_max, moving = p
     path = PathSamples(tau, d1, d2, beta_max, vlim, a_max, offsets, frac, cd1, cd2, moving)
-    fixed, value, rk, ra, rc, kind, point, rptr = c
-    lo = np.zeros(len(tau))
-    problem = ChainProblem(tau, smoothness, lo, beta_max, fixed, value, rptr, rk, ra, rc, kind,
-                           point)
-    kl, ku, greedy, node, row, exact, hi_t, fixed_t, value_t, ok = r
-    rch = Reach(kl, ku, greedy, int(node), int(row), bool(exact))
-    tight = None
-    if ok:
-        tight = ChainProblem(tau, smoothness, lo, hi_t, fixed_t, value_t, rptr, rk, ra, rc,
-                             kind, point)
+    greedy, node, row, exact, ok = r
+    found = (path, smoothness, boundary, greedy, node, row, exact, ok)
     x, code, iterations, objective = s
-    n_bad = a[0]
-    checked = None if n_bad < 0 else _audit(*a)
+    checked = None if a[0] < 0 else _audit(*a)
     if ok and exact:
-        stats = SolverStats("Solved", 0, 0.0, 0.0, problem.objective(greedy), "reachability")
-        return Round(path, problem, rch, tight, greedy, stats, checked)
+        stats = SolverStats("Solved", 0, 0.0, 0.0, objective_of(tau, smoothness, greedy),
+                            "reachability")
+        return Round(*found, greedy, stats, checked)
     if code < 0:  # the interior-point method did not run (rota.kernels.rounds.NOT_RUN)
-        return Round(path, problem, rch, tight)
+        return Round(*found)
     stats = SolverStats(fast_status(code), int(iterations), wall, wall, float(objective), "fast")
-    return Round(path, problem, rch, tight, x if code == 0 else None, stats, checked)
+    return Round(*found, x if code == 0 else None, stats, checked)
 
 
 def finish(traj: Trajectory, rnd: Round, settings: SolverSettings) -> Round:
     """``rnd`` with an answer: Clarabel when it is the chosen method, or when the
     fast solver inside the round did not converge (then its stats go into the
     note). Returns ``rnd`` itself when it has one, or when it is infeasible."""
-    if rnd.beta is not None or rnd.tight is None:
+    if rnd.beta is not None or not rnd.ok:
         return rnd
+    tight = rnd.tight
     if rnd.stats is None:
-        beta, stats = solve(rnd.tight, settings, start=rnd.reach.greedy)
+        beta, stats = solve(tight, settings, start=rnd.greedy)
     else:
-        beta, stats = hand_over(rnd.tight, settings, rnd.stats)
+        beta, stats = hand_over(tight, settings, rnd.stats)
     checked = None if beta is None else audit(traj, rnd.path, beta)
-    return Round(rnd.path, rnd.problem, rnd.reach, rnd.tight, beta, stats, checked)
+    return replace(rnd, beta=beta, stats=stats, audit=checked)
 
 
 def more_points(before: tuple[IntArray, FloatArray],

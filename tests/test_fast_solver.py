@@ -123,8 +123,8 @@ def _staged(traj, tau, d1, d2, vlim, lim, boundary, lam, more):
 def test_compiled_round_is_the_steps_one_by_one(traj, lim, n, lam, share, more):
     """rota.rounds.one_round (one compiled call) gives exactly what the steps give
     one by one: check points (with points added by an earlier audit, sorted, a
-    duplicate dropped), rows, reachability, the tightened bounds, the fast solver's
-    answer and its audit."""
+    duplicate dropped), reachability's verdict and greedy profile (which the rows
+    decide), the tightened bounds, the fast solver's answer and its audit."""
     tau = make_grid(traj, traj.duration / n)
     _, d1, d2 = evaluate(traj, tau)
     s = float(np.linalg.norm(d1[0]))
@@ -142,11 +142,11 @@ def test_compiled_round_is_the_steps_one_by_one(traj, lim, n, lam, share, more):
     assert rnd.path.moving == path.moving
     for name in ("fixed", "value", "rptr", "rk", "ra", "rc", "rkind", "rpoint"):
         assert np.array_equal(getattr(rnd.problem, name), getattr(problem, name)), name
-    assert (rnd.reach.fail_node, rnd.reach.fail_row) == (rch.fail_node, rch.fail_row)
+    assert (rnd.fail_node, rnd.fail_row) == (rch.fail_node, rch.fail_row)
     if not path.moving:
         return
-    assert rnd.reach.exact == rch.exact and np.array_equal(rnd.reach.greedy, rch.greedy)
-    assert (rnd.tight is None) == (tight is None)
+    assert rnd.exact == rch.exact and np.array_equal(rnd.greedy, rch.greedy)
+    assert rnd.ok == (tight is not None) and (rnd.tight is None) == (tight is None)
     if tight is None:
         return
     for name in ("hi", "fixed", "value"):

@@ -19,10 +19,10 @@ from rota.kernels.path import (
     sample,
     time_map,
 )
-from rota.kernels.reach import forward_reachable, passes
+from rota.kernels.reach import forward_reachable, passes, tighten
 from rota.kernels.rounds import one_round
 
 __all__ = ["assess_path", "audit", "boundary_nodes", "braking_points", "bricks_build",
            "bricks_query", "bspline_pieces", "build_rows", "chance_limits", "eval_pieces",
            "forward_reachable", "grid_path", "ipm_solve", "memory_caps", "one_round", "passes",
-           "piece_edges", "sample", "time_map"]
+           "piece_edges", "sample", "tighten", "time_map"]

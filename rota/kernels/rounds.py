@@ -31,13 +31,14 @@ def one_round(breaks, coefs, t0, t1, tau, d1, vlim, a_max, parts, piece_parts, s
     answer (the greedy profile when certified, else the solver's) when there is one.
 
     The boundary ``beta_start``, ``alpha_start``, ``beta_end``: NaN when free.
-    Returns five tuples (see :func:`rota.rounds.one_round` for what becomes of them):
-    ``path (offsets, frac, cd1, cd2, beta_max, moving)``, ``problem (fixed, value,
-    rk, ra, rc, kind, point, rptr)``, ``reach (kl, ku, greedy, node, row, exact,
-    hi, fixed, value, ok)`` with the tightened bounds, ``solved (x, code,
-    iterations, objective)`` (``code`` :data:`NOT_RUN` when it did not run) and
-    ``audited (n, bad_interval, bad_frac, speed, acc, axis, point)`` (``n`` -1
-    when there was nothing to audit).
+    Returns four tuples (see :func:`rota.rounds.one_round` for what becomes of them):
+    ``path (offsets, frac, cd1, cd2, beta_max, moving)``, ``reach (greedy, node,
+    row, exact, ok)`` (``ok``: feasible, and the tightened bounds leave no two
+    neighbours standing still), ``solved (x, code, iterations, objective)``
+    (``code`` :data:`NOT_RUN` when it did not run) and ``audited (n, bad_interval,
+    bad_frac, speed, acc, axis, point)`` (``n`` -1 when there was nothing to
+    audit). The chain problem itself stays inside (returning its arrays costs
+    more than making them again on the rare paths that need them).
     """
     n = tau.shape[0]
     h = tau[1] - tau[0]
@@ -74,7 +75,6 @@ def one_round(breaks, coefs, t0, t1, tau, d1, vlim, a_max, parts, piece_parts, s
                                                a_max, beta_max, breaks, coefs, refine_tol,
                                                bad_i, bad_f)
     return ((offsets, frac, cd1, cd2, beta_max, moving),
-            (fixed, value, rk, ra, rc, kind, point, rptr),
-            (kl, ku, greedy, node, row, exact, hi_t, fixed_t, value_t, ok),
+            (greedy, node, row, exact, ok),
             (x, code, iterations, objective),
             (n_bad, bad_i[:max(n_bad, 0)], bad_f[:max(n_bad, 0)], speed, acc, axis, worst))
