@@ -336,3 +336,35 @@ def test_nearest_along_a_path_matches_brute_force(res: float) -> None:
         np.testing.assert_allclose(np.linalg.norm(o[near] - q[near], axis=1), bd[near],
                                    rtol=1e-12)
         assert np.all(np.isinf(d[~near])) and np.all(np.isnan(o[~near]))
+
+
+@pytest.mark.parametrize("crop", [False, True])
+def test_nearest_inside_and_around_solid_blocks_matches_brute_force(monkeypatch,
+                                                                    crop: bool) -> None:
+    """Solid obstacles (voxels inside a block or a trunk, and points inside them,
+    deep or in the skin): every point gets the nearest centre of all, as by brute
+    force, with the cached index and the cropped one."""
+    import rota.voxelmap as vm
+
+    if crop:
+        monkeypatch.setattr(vm, "INDEX_CACHE_LIMIT", 0)
+    rng = np.random.default_rng(11)
+    res = 0.1
+    axes = [np.arange(a, b, res / 2) for a, b in ((0.0, 1.2), (0.0, 0.8), (0.0, 1.0))]
+    block = np.stack(np.meshgrid(*axes), -1).reshape(-1, 3)
+    trunk = np.stack(np.meshgrid(np.arange(-0.2, 0.2, res / 2), np.arange(-0.2, 0.2, res / 2),
+                                 np.arange(0.0, 3.0, res / 2)), -1).reshape(-1, 3)
+    m = VoxelMap.from_points(np.concatenate([block, trunk + [3.0, 1.0, 0.0]]), res,
+                             origin=[0.01, -0.03, 0.0])
+    q = np.concatenate([rng.uniform([-0.5, -0.5, -0.2], [4.0, 2.0, 3.2], (1500, 3)),
+                        rng.uniform([0.0, 0.0, 0.0], [1.2, 0.8, 1.0], (500, 3)),  # inside
+                        rng.uniform([2.8, 0.8, 0.0], [3.2, 1.2, 3.0], (300, 3))])
+    bd, _ = _brute_nearest(m.occupied, q)
+    assert (bd < 0.5 * res * np.sqrt(3)).sum() > 500  # many points inside occupied voxels
+    for margin in (0.3, math.inf):
+        d, o = m.nearest(q, bbox_margin=margin)
+        near = bd < margin
+        np.testing.assert_allclose(d[near], bd[near], rtol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(o[near] - q[near], axis=1), bd[near],
+                                   rtol=1e-12)
+        assert np.all(np.isinf(d[~near]))
