@@ -30,6 +30,7 @@ CHECK_TOL = 1e-3
 MAX_ROUNDS = 4
 #: Share of the smallest acceleration limit used to brake a start that is too fast.
 BRAKE_SHARE = 0.5
+#: The fallback's reason for a path that does not move.
 DEGENERATE = "degenerate trajectory: the path does not move (its length is 0)"
 
 
