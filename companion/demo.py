@@ -94,7 +94,11 @@ async def take_off(gs: GroundStation, world: World | None = None,
     until the vehicle hovers; every step waits for the state to confirm it."""
     await gs.wait_for(lambda s: s["state"] == "ready", 60, "the vehicle to be ready")
     if world is not None and home is not None:
-        gs.publish("map", map_message(world, home))
+        # Encoded in the demo's worker process and sent from a thread: the message is
+        # about 1 MB of JSON (50 ms of work that holds the GIL), and in the demo this
+        # event loop also runs the service's setpoint stream.
+        payload = await in_worker(map_payload, world, home)
+        await asyncio.to_thread(gs.publish, "map", payload)
         await gs.wait_for(lambda s: s.get("map_voxels"), 10, "the map to arrive")
     await gs.command_confirmed("arm")
     await gs.command_confirmed("takeoff")
@@ -149,6 +153,11 @@ def map_message(world: World, home: np.ndarray, resolution: float = 0.1) -> dict
     return VoxelMap.from_points(pts, resolution, origin=-home).to_dict() | {"stamp": time.time()}
 
 
+def map_payload(world: World, home: np.ndarray) -> bytes:
+    """:func:`map_message` encoded as JSON."""
+    return json.dumps(map_message(world, home), allow_nan=False).encode()
+
+
 #: Clearance (m, beyond the robot's radius) the demo's planner keeps from trees. PX4 with GPS
 #: strays 0.3-0.6 m per axis off its path at any speed, and its height estimate drifts by
 #: about 0.45 m (docs/sitl.md, docs/estimator.md); a planner for such a vehicle inflates
@@ -156,20 +165,26 @@ def map_message(world: World, home: np.ndarray, resolution: float = 0.1) -> dict
 #: 2 m/s, re-timed by ROTA): 0.6 m collided in 13, 0.9 m in 2, 1.0 m in 1 (a height dip).
 PLANNER_CLEARANCE_M = 1.0
 
-_PLANNER: ProcessPoolExecutor | None = None
+_WORKER: ProcessPoolExecutor | None = None
+
+
+async def in_worker(fn: Any, *args: Any, **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)`` in the demo's worker process: the demo's service shares
+    this event loop, and CPU work here or in a thread (which holds the GIL) would
+    stall the setpoint stream, which the service then reports and brakes for, as it
+    must."""
+    global _WORKER
+    if _WORKER is None:
+        _WORKER = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    return await asyncio.get_running_loop().run_in_executor(
+        _WORKER, functools.partial(fn, *args, **kwargs))
 
 
 async def plan_async(world: World, **kwargs: Any) -> BSplineTrajectory:
-    """:func:`sitl.planner.plan` in a process of its own: planning takes up to a
-    second of CPU, and the demo's service shares this event loop (a planner on the
-    loop would stall the setpoint stream, which the service then reports and
-    brakes for, as it must)."""
-    global _PLANNER
-    if _PLANNER is None:
-        _PLANNER = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    """:func:`sitl.planner.plan` in the demo's worker process (planning takes up to
+    a second of CPU: :func:`in_worker`)."""
     kwargs.setdefault("clearance", PLANNER_CLEARANCE_M)
-    return await asyncio.get_running_loop().run_in_executor(
-        _PLANNER, functools.partial(plan, world, **kwargs))
+    return await in_worker(plan, world, **kwargs)
 
 
 #: Times :func:`fly_to_goal` plans a replan that the service refused.

@@ -164,16 +164,17 @@ class GroundStation:
         return callback
 
     # ------------------------------------------------------------ sending
-    def publish(self, name: str, obj: dict[str, Any]) -> None:
-        """Put a JSON message on ``<prefix>/<vehicle>/<name>`` (trajectory, map).
+    def publish(self, name: str, obj: dict[str, Any] | bytes) -> None:
+        """Put a JSON message on ``<prefix>/<vehicle>/<name>`` (trajectory, map);
+        ``obj`` a dict, or its JSON already encoded (``bytes``).
 
         With congestion control *block*, not Zenoh's default for a put (*drop*): a
         map of a megabyte goes out in many fragments, and with *drop* a full send
         queue (a busy machine) loses it without a word on either side, as a map once
         was in a test on a loaded machine. Waiting for room is what an operator wants
         of a map or a trajectory."""
-        self.session.put(self.key(name), json.dumps(obj, allow_nan=False).encode(),
-                         encoding=zenoh.Encoding.APPLICATION_JSON,
+        payload = obj if isinstance(obj, bytes) else json.dumps(obj, allow_nan=False).encode()
+        self.session.put(self.key(name), payload, encoding=zenoh.Encoding.APPLICATION_JSON,
                          congestion_control=zenoh.CongestionControl.BLOCK)
 
     def send_trajectory(self, obj: dict[str, Any]) -> None:
