@@ -447,21 +447,13 @@ class Window(Trajectory):
         p = self.base.position(x)  # type: ignore[union-attr]
         return p if self.offset is None else p + self._fade(x)[0]
 
-    @property
-    def pieces(self) -> tuple[FloatArray, FloatArray]:
-        if self.offset is None:
-            return self.base.pieces  # type: ignore[union-attr]
-        cached = self.__dict__.get("_pieces")
-        if cached is None:
-            cached = self._faded_pieces()
-            object.__setattr__(self, "_pieces", cached)
-        return cached
-
-    def _faded_pieces(self) -> tuple[FloatArray, FloatArray]:
-        """The base's pieces cut at the blend's ends, with the blend's quintic added
-        to those between them and the full offset to those before (made once and
-        kept)."""
+    def _make_pieces(self) -> tuple[FloatArray, FloatArray]:
+        """The base's pieces; with an offset, cut at the blend's ends, with the
+        blend's quintic added to those between them and the full offset to those
+        before."""
         breaks, coefs = self.base.pieces  # type: ignore[union-attr]
+        if self.offset is None:
+            return breaks, coefs
         t0, t1 = self.start, self.start + self.blend
         cuts = np.array([c for c in (t0, t1) if breaks[0] < c < breaks[-1]
                          and not np.any(np.abs(breaks - c) <= 1e-12)])
