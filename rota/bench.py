@@ -164,7 +164,7 @@ def run_rota(inp: RetimeInput, keep: dict | None = None) -> tuple[float, float, 
         wall = time.perf_counter() - t0
     solver_s = float("nan")
     if keep is not None:
-        keep["problem"] = acc["round"].problem
+        keep["problem"] = None if acc["round"] is None else acc["round"].problem
         solver_s = solver_alone(acc["round"], inp.solver)
     return wall, solver_s, res
 
@@ -437,7 +437,7 @@ def machine() -> dict[str, str]:
 def calibration_s() -> float:
     """Median seconds of a fixed piece of CPU work (Python loop, small numpy calls,
     a 200 x 200 solve): how fast the machine was in this run. This shared machine's
-    speed varies by up to 1.7x between runs; the ratios against the paper move with
+    speed varies by up to 2x between runs; the ratios against the paper move with
     it, those against the peers of the same run do not."""
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 200)) + 200 * np.eye(200)
