@@ -165,7 +165,7 @@ class Commander:
                 break
             except AutopilotError:
                 if attempt == 2 or self.state != State.PRESTREAM:
-                    await self.stream.stop()
+                    self.stream.stop()
                     self.state = State.AIRBORNE
                     raise
                 await asyncio.sleep(0.5)
@@ -174,7 +174,7 @@ class Commander:
             await self._confirm(lambda: tel.flight_mode == "OFFBOARD"
                                 or self.state != State.PRESTREAM, "OFFBOARD")
         except AutopilotError:
-            await self.stream.stop()
+            self.stream.stop()
             self.state = self._derive_state()
             raise
         if self.state != State.PRESTREAM:
@@ -195,7 +195,7 @@ class Commander:
         self.replanner.drop()
         self.stream.drop_next()
         if self.stream.streaming:
-            await self.stream.stop()
+            self.stream.stop()
             await self.autopilot.hold()
             self.state = State.AIRBORNE
             return "offboard left: PX4 Hold"
@@ -206,7 +206,7 @@ class Commander:
         if not tel.armed:
             return "disarmed: nothing to land"
         self.replanner.drop()
-        await self.stream.stop()
+        self.stream.stop()
         await self.autopilot.land()
         self.state = State.LANDING
         await self._confirm(lambda: tel.flight_mode == "LAND" or tel.landed_state in (
@@ -263,7 +263,7 @@ class Commander:
                 else:
                     self.report.error("mavlink", "link lost")
                 self.replanner.drop()
-                self.spawn(self.stream.stop())
+                self.stream.stop()
                 self.state = State.LINK_LOST
             return
         if self.state in (State.PRESTREAM, State.OFFBOARD):
@@ -277,7 +277,7 @@ class Commander:
                 why = f"PX4 left offboard (now {tel.flight_mode})"
             if why:
                 self.replanner.drop()
-                self.spawn(self.stream.stop())
+                self.stream.stop()
                 self.report.error("px4", f"{why}: setpoint stream stopped; a new 'start' is "
                                   "needed")
                 self.state = self._derive_state()

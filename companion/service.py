@@ -190,7 +190,7 @@ class Service:
                 self.report.event("service stopping: vehicle handed to PX4 Hold")
             except (AutopilotError, TimeoutError) as exc:
                 self.report.error("shutdown", f"could not switch PX4 to Hold: {exc}")
-        await self.stream.stop()
+        self.stream.stop()
         with contextlib.suppress(Exception):
             self.publisher.publish_status()
         await self.supervisor.close()

@@ -175,8 +175,9 @@ class SetpointStream:
             self.halted, self.last_sent = None, None
             self.streaming, self.started = True, time.monotonic()
 
-    async def stop(self) -> None:
-        """Stop streaming and forget the source."""
+    def stop(self) -> None:
+        """Stop streaming and forget the source (at once: a status sent after it
+        never says streaming)."""
         with self.lock:
             self.streaming = False
             self.source, self.next_plan = None, None
