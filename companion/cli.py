@@ -89,6 +89,15 @@ def check_environment(cfg: Config) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     cfg = load(args.config)
     check_environment(cfg)
+    # records, logs and the estimator's state are the operator's alone (files 0600,
+    # folders 0700), under systemd (UMask=0027) or not; a stricter umask stays
+    os.umask(os.umask(0o077) | 0o077)
+    if access_control(cfg):  # its denials are in Zenoh's own log only: into ours
+        import zenoh
+
+        from companion import zenoh_log
+
+        zenoh_log.forward(zenoh)
     setup_logging(cfg.service.log_level)
     try:
         asyncio.run(_serve(cfg))
@@ -100,6 +109,16 @@ def cmd_run(args: argparse.Namespace) -> int:
                            "(is the port in use? zenohd listens on 7447 too)") from None
         raise
     return 0
+
+
+def access_control(cfg: Config) -> bool:
+    """Whether the Zenoh configuration turns access control on."""
+    from companion.security import zenoh_config
+
+    try:
+        return json.loads(zenoh_config(cfg).get_json("access_control/enabled")) is True
+    except Exception:  # noqa: BLE001 - unset
+        return False
 
 
 class RunError(RuntimeError):

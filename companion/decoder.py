@@ -63,6 +63,7 @@ class Decoder:
     def __init__(self, cfg: Callable[[], Config]) -> None:
         self._cfg = cfg
         self.worker = Worker("decode", workers=2)
+        self.ready = False
 
     async def start(self) -> None:
         """Spawn every worker now (imports take a second, many on a busy machine),
@@ -71,9 +72,15 @@ class Decoder:
         await asyncio.gather(*(
             self.worker.call(60.0, _run, decode_query, "warm-up", b"{}", cfg, time.time())
             for _ in range(self.worker.workers)))
+        self.ready = True
 
     async def decode(self, what: str, payload: bytes, fn: DecodeFn | None = None) -> Any:
         """``payload`` decoded by ``fn`` (default: the decoder named ``what``)."""
+        if not self.ready:
+            # (a decode's budget is not meant for a worker still importing: timed out,
+            # it would kill the worker that start-up is waiting for)
+            raise msgs.Rejected(f"{what}: the service is starting (its decoders are not "
+                                "ready yet); try again in a few seconds")
         cfg = self._cfg()
         fn = fn or DECODERS[what]
         for attempt in (1, 2):

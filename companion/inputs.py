@@ -6,7 +6,9 @@ checks: its byte size against the configured cap and a rate limit; what fails
 is dropped (a put) or refused at once (a query), and counted. What passes is
 handed to the event loop as bytes, and from there to the decoder's worker
 process; nothing is decoded on the loop, and replies leave from the service's
-sending thread (:mod:`companion.outbox`). Puts are decoded one at a time per
+sending thread (:mod:`companion.outbox`). Every input is put on record with the
+peer that sent it (:mod:`companion.actors`): each query and each refusal in the
+log, each accepted put in the flight record's ``log`` channel. Puts are decoded one at a time per
 kind, in arrival order; only the newest few of each kind wait (:data:`BACKLOG`),
 so a flood supersedes itself. Every query gets a reply, whatever happens to it.
 """
@@ -26,6 +28,7 @@ from typing import Any
 import zenoh
 
 from companion import messages as msgs
+from companion.actors import Actor, Peers, capped
 from companion.config import Config
 from companion.decoder import DecodeFn, Decoder
 from companion.outbox import Send, send_now
@@ -38,12 +41,15 @@ RECORD_MAX_BYTES = 1_000_000
 #: Puts of each kind waiting for the decoder; older ones are dropped (counted).
 BACKLOG = {"trajectory": 4, "map": 1}
 
-#: A subscription handler: the decoded, validated input, on the event loop.
+#: A subscription handler: the decoded, validated input, on the event loop; it
+#: raises :class:`companion.messages.Rejected` to refuse it.
 PutHandler = Callable[[Any], None]
 #: A query handler: (name, decoded payload or None, the asking peer) -> the reply's
-#: JSON bytes. The peer is the Zenoh id the asker declares in its source info
-#: (``"unknown"`` without); the fleet's access control decides who may ask at all.
+#: JSON bytes. The peer is the :class:`~companion.actors.Actor` in words; the
+#: fleet's access control decides who may ask at all.
 QueryHandler = Callable[[str, Any, str], Awaitable[bytes]]
+#: An input from an unknown sender (a ROS 2 message: rmw_zenoh declares no source).
+NOBODY = Actor(None)
 
 
 @dataclass(frozen=True)
@@ -94,11 +100,13 @@ class Inputs:
         self._drops: Counter[str] = Counter()  # (input: reason) -> count since the last report
         self._drops_lock = threading.Lock()
         self.dropped: Counter[str] = Counter()  # all time, per input
-        self._pending: dict[str, deque[tuple[bytes, DecodeFn | None]]] = {}
+        self._pending: dict[str, deque[tuple[bytes, DecodeFn | None, Actor]]] = {}
+        self._seen: set[tuple[str, str | None, str | None]] = set()  # (input, zid, name)
         self._wake: dict[str, asyncio.Event] = {}
         self._background: set[asyncio.Task] = set()
         #: the flight record: every put as received (``record(channel, payload)``)
         self.record: Callable[[str, Any], None] = lambda channel, payload: None
+        self.peers = Peers(session)
         self._objs: list[Any] = [
             session.declare_subscriber(key("trajectory"), self._put("trajectory")),
             session.declare_subscriber(key("map"), self._put("map")),
@@ -120,27 +128,31 @@ class Inputs:
             self._drops[f"{what}: {reason}"] += 1
             self.dropped[what] += 1
 
-    def admit(self, what: str, size: int, cap: int, rate: float) -> bool:
+    def admit(self, what: str, size: int, cap: int, rate: float,
+              actor: Actor = NOBODY) -> bool:
         """The constant-time checks of an input of ``size`` bytes (any thread)."""
+        sender = "" if actor is NOBODY else f" (from {actor})"
         if size > cap:
-            self._drop(what, f"over the {cap}-byte cap")
+            self._drop(what, f"over the {cap}-byte cap{sender}")
             return False
         if not self._limit(what, rate).allow():
-            self._drop(what, f"over {rate:g} per second")
+            self._drop(what, f"over {rate:g} per second{sender}")
             return False
         return True
 
-    def deliver(self, what: str, payload: bytes, fn: DecodeFn | None = None) -> None:
+    def deliver(self, what: str, payload: bytes, fn: DecodeFn | None = None,
+                actor: Actor = NOBODY) -> None:
         """Hand an admitted put to the loop (any thread); ``fn`` decodes it."""
-        self._loop.call_soon_threadsafe(self._arrived, what, payload, fn)
+        self._loop.call_soon_threadsafe(self._arrived, what, payload, fn, actor)
 
     def _put(self, what: str) -> Callable[[zenoh.Sample], None]:
         def callback(sample: zenoh.Sample) -> None:
             i = self._cfg().inputs
             cap, rate = (i.max_map_bytes, i.max_maps_per_s) if what == "map" else \
                 (i.max_trajectory_bytes, i.max_messages_per_s)
-            if self.admit(what, len(sample.payload), cap, rate):
-                self.deliver(what, sample.payload.to_bytes())
+            actor = self.peers.actor(sample.source_info)
+            if self.admit(what, len(sample.payload), cap, rate, actor):
+                self.deliver(what, sample.payload.to_bytes(), None, actor)
 
         return callback
 
@@ -153,15 +165,14 @@ class Inputs:
             # not grow the table of limits)
             label = (f"cmd/{name}" if name in msgs.COMMANDS else "cmd/unknown") \
                 if what == "cmd" else what
-            if not self.admit(label, size, i.max_query_bytes, i.max_queries_per_s):
+            actor = self.peers.actor(query.source_info)
+            if not self.admit(label, size, i.max_query_bytes, i.max_queries_per_s, actor):
                 self._refuse(query, what, name, f"refused: over {i.max_queries_per_s:g} "
                              f"queries per second or {i.max_query_bytes} bytes")
                 return
             payload = query.payload.to_bytes() if size else None
-            info = query.source_info
-            peer = str(info.source_id.zid) if info is not None else "unknown"
             self._loop.call_soon_threadsafe(self._answer, handler, query, what, name, payload,
-                                            peer)
+                                            actor)
 
         return callback
 
@@ -177,7 +188,7 @@ class Inputs:
         reply(query, self._reply_key(what, name), json.dumps(body).encode())
 
     # -------------------------------------------------------------- event loop
-    def _arrived(self, what: str, payload: bytes, fn: DecodeFn | None) -> None:
+    def _arrived(self, what: str, payload: bytes, fn: DecodeFn | None, actor: Actor) -> None:
         self.record(what, payload if len(payload) <= RECORD_MAX_BYTES else
                     {"bytes": len(payload), "not_recorded": "larger than "
                      f"{RECORD_MAX_BYTES} bytes"})
@@ -185,7 +196,7 @@ class Inputs:
         if len(queue) >= BACKLOG.get(what, 1):
             queue.popleft()
             self._drop(what, "superseded by newer ones before it was decoded")
-        queue.append((payload, fn))
+        queue.append((payload, fn, actor))
         self._wake.setdefault(what, asyncio.Event()).set()
 
     async def consume(self, what: str) -> None:
@@ -198,27 +209,40 @@ class Inputs:
                 wake.clear()
                 await wake.wait()
                 continue
-            payload, fn = queue.popleft()
+            payload, fn, actor = queue.popleft()
             try:
                 obj = await self._decoder.decode(what, payload, fn)
+                handler(obj)
             except msgs.Rejected as exc:
-                self.report.error(what, str(exc))
+                self.report.error(what, f"{exc} (from {actor})")
                 continue
-            handler(obj)
+            self._accepted(what, obj, len(payload), actor)
+
+    def _accepted(self, what: str, obj: Any, size: int, actor: Actor) -> None:
+        """An accepted put on record: in the flight record's ``log`` channel every
+        time, in the log the first time each peer sends each kind."""
+        ident = getattr(obj, "id", None)
+        message = f"{what}{f' {capped(ident)!r}' if ident else ''} ({size} bytes) from {actor}"
+        key = (what, actor.zid, actor.name)
+        if key not in self._seen and len(self._seen) < 1000:  # (made-up ids: bounded)
+            self._seen.add(key)
+            log.info("first %s", message)
+        self.record("log", {"level": "INFO", "logger": "rota.companion.inputs",
+                            "message": message, "actor": actor.to_dict()})
 
     def kinds(self) -> list[str]:
         """The put inputs that need a :meth:`consume` task."""
         return ["trajectory", "map"]
 
     def _answer(self, handler: QueryHandler, query: zenoh.Query, what: str, name: str,
-                payload: bytes | None, peer: str) -> None:
+                payload: bytes | None, actor: Actor) -> None:
         async def answer() -> None:
             body = None
             try:
                 request = None
                 if payload and what != "cmd":
                     request = await self._decoder.decode("query", payload)
-                body = await handler(name, request, peer)
+                body = await handler(name, request, str(actor))
             except msgs.Rejected as exc:
                 self.report.error(what, str(exc))
                 body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
@@ -233,12 +257,25 @@ class Inputs:
                 if body is None:  # cancelled (shutdown): still answer
                     body = json.dumps(msgs.envelope(msgs.REPLY, command=name, ok=False,
                                                     message="service stopping")).encode()
+                self._on_record(what, name, body, actor)
                 # (a reply may wait for room on the asker's link: never on the loop)
                 self._send(reply, query, self._reply_key(what, name), body)
 
         task = asyncio.ensure_future(answer())
         self._background.add(task)
         task.add_done_callback(self._background.discard)
+
+    def _on_record(self, what: str, name: str, body: bytes, actor: Actor) -> None:
+        """A query and its answer in the log (and so the flight record), with the
+        asker: every command, configuration and estimator request, accepted or not."""
+        try:
+            answer = json.loads(body)
+            ok, words = bool(answer.get("ok")), str(answer.get("message") or "")
+        except (ValueError, AttributeError):
+            ok, words = False, "unreadable reply"
+        request = f"cmd/{capped(name)}" if what == "cmd" else what
+        log.log(logging.INFO if ok else logging.WARNING, "%s from %s: %s%s", request, actor,
+                "done" if ok else "refused", f": {capped(words, 300)}" if words else "")
 
     async def report_drops(self) -> None:
         """Once a second: what was dropped or refused, in one error (a task)."""
@@ -258,6 +295,7 @@ class Inputs:
                     f"{n} x {reason}" for reason, n in sorted(superseded.items())), "inputs")
 
     def close(self) -> None:
+        self.peers.close()
         for obj in self._objs:
             try:
                 obj.undeclare()

@@ -298,11 +298,7 @@ class Service:
             self.ros2.put("retimed", ros2)
 
     def _on_trajectory(self, incoming: msgs.Incoming) -> None:
-        try:
-            self.replanner.offer(incoming)
-        except msgs.Rejected as exc:
-            self.report.error("trajectory", str(exc))
-            return
+        self.replanner.offer(incoming)  # (a refusal raises: the inputs report it, with the sender)
         if self.cfg.stream.auto_start and self.commander.state == State.READY:
             self.commander.spawn(self.commander.auto_start())
 

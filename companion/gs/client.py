@@ -174,8 +174,10 @@ class GroundStation:
         was in a test on a loaded machine. Waiting for room is what an operator wants
         of a map or a trajectory."""
         payload = obj if isinstance(obj, bytes) else json.dumps(obj, allow_nan=False).encode()
+        self._sn += 1  # who sent it: the service's record names this session's Zenoh id
         self.session.put(self.key(name), payload, encoding=zenoh.Encoding.APPLICATION_JSON,
-                         congestion_control=zenoh.CongestionControl.BLOCK)
+                         congestion_control=zenoh.CongestionControl.BLOCK,
+                         source_info=zenoh.SourceInfo(self.session.id, self._sn))
 
     def send_trajectory(self, obj: dict[str, Any]) -> None:
         self.publish("trajectory", obj)
