@@ -400,3 +400,43 @@ def test_config_and_estimator_queries_through_the_service(tmp_path):
     assert "limits, safety, uncertainty" in reply["message"]
     reply = json.loads(asyncio.run(service._on_estimator("estimator", {"reset": "no"}, "p")))
     assert not reply["ok"] and reply["message"] == "reset: must be true or false, got 'no'"
+
+
+# ------------------------------------------------------------- any JSON at all
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**400, 10**400) | st.floats()
+    | st.sampled_from([0, 1, -1, 2**63, 1e308, "", "yes", "no", "true", "0", "x" * 500]),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner,
+                                                                max_size=3),
+    max_leaves=8)
+KEYS = st.sampled_from(sorted(RULES) + sorted(FIXED) + [("limits", "vmax"), ("limit", "v_max"),
+                                                        ("stream", "rate_hz"), ("", "")])
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(KEYS, JSON), min_size=1, max_size=3))
+def test_any_config_request_is_answered_in_words(items):
+    """Whatever JSON arrives, the answer is an error in words (no 'internal error')
+    or a change inside the envelope."""
+    rc, state = _reconfigure()
+    changes: dict = {}
+    for (section, name), value in items:
+        changes.setdefault(section, {})[name] = value
+    try:
+        rc.apply(decode_query(json.dumps({"set": changes}).encode(), FILE, time.time()), "p")
+    except ConfigError as exc:
+        assert state["cfg"] == FILE and len(str(exc)) < 600
+    else:
+        assert not rises(state["cfg"])
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(st.sampled_from(["reset", "freeze", "set", "other"]),
+                       JSON | st.fixed_dictionaries({"m": JSON, "b": JSON}), max_size=3))
+def test_any_estimator_request_is_answered_in_words(request_):
+    try:
+        req = parse_estimator_request(request_, FILE)
+    except ConfigError as exc:
+        assert len(str(exc)) < 600
+    else:
+        assert isinstance(req.reset, bool) and req.freeze in (None, True, False)
