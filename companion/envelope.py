@@ -116,8 +116,8 @@ def _allowed(rule: Rule, file_value: Any) -> tuple[Callable[[Any], bool], str]:
                 f"more than 0 and at most {file_value} (the config file's value)")
     lo = file_value if rule.lo is None else rule.lo
     hi = max(lo, rule.hi) if rule.hi is not None else float("inf")
-    return (lambda v: lo <= v <= hi), f"from {lo} to {hi}" + (
-        " (the config file's value and up)" if rule.lo is None else "")
+    mark = " (the config file's value)" if rule.lo is None else ""
+    return (lambda v: lo <= v <= hi), f"from {lo}{mark} to {hi}"
 
 
 def _each(new: Any, old: Any, ok: Callable[[Any, Any], bool]) -> bool:
