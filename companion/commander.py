@@ -20,7 +20,7 @@ from enum import StrEnum
 import numpy as np
 
 from companion.autopilot import Autopilot, AutopilotError
-from companion.config import Config
+from companion.config import Config, short
 from companion.messages import COMMANDS
 from companion.plan import Brake, Hold, Plan
 from companion.replanner import Replanner
@@ -82,7 +82,8 @@ class Commander:
     async def run(self, name: str) -> str:
         """Run the command ``name``; raises AutopilotError saying why it failed."""
         if name not in COMMANDS:
-            raise AutopilotError(f"unknown command {name!r} (known: {', '.join(COMMANDS)})")
+            raise AutopilotError(f"unknown command {short(name)!r} (known: "
+                                 f"{', '.join(COMMANDS)})")
         if name in SAFETY_COMMANDS:
             return await getattr(self, f"cmd_{name}")()
         if self._busy:

@@ -7,8 +7,10 @@ so a typo never silently falls back to a default.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
+import sys
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -173,34 +175,93 @@ _SECTION_TYPES = {
     "safety": SafetySection, "uncertainty": UncertaintySection, "estimator": EstimatorSettings,
     "record": RecordSettings, "ros2": Ros2Settings,
 }
+#: The sections of a config file.
+SECTIONS = tuple(_SECTION_TYPES)
+
+
+#: Names and values are shown in messages at most this long (a 10,000-character
+#: name or value sent over the network is not copied whole into status and log).
+SHOWN_CHARS = 64
+#: Integer settings hold at most this magnitude (a C ``int64``; numpy takes them).
+MAX_INT = 2**63 - 1
+
+
+def short(text: str, limit: int = SHOWN_CHARS) -> str:
+    """``text``, cut to ``limit`` characters ending in an ellipsis when longer."""
+    return text if len(text) <= limit else text[:limit - 1] + "\u2026"
+
+
+def shown(value: Any, limit: int = SHOWN_CHARS) -> str:
+    """``repr(value)`` for a message, cut to ``limit`` characters."""
+    if isinstance(value, int) and not isinstance(value, bool) \
+            and value.bit_length() > 3 * sys.get_int_max_str_digits():
+        return f"an integer of {value.bit_length()} bits"  # repr would raise
+    return short(repr(value), limit)
+
+
+def hint(name: str, known: Any) -> str:
+    """``did you mean 'x'? `` when ``name`` is close to one of ``known``; else ''."""
+    close = difflib.get_close_matches(name[:SHOWN_CHARS], list(known), n=1, cutoff=0.6)
+    return f"did you mean {close[0]!r}? " if close else ""
+
+
+def unknown_section(section: str, known: Any, words: str) -> ConfigError:
+    """The error for a section name that is not one of ``known`` (``words``: what the
+    list of known names is)."""
+    known = list(known)
+    return ConfigError(f"[{short(section)}]: unknown section {short(section)!r} "
+                       f"({hint(section, known)}{words}: {', '.join(known)})")
+
+
+def flag(value: Any, where: str) -> bool:
+    """A strict boolean: ``true`` or ``false``, never a truthy string or number."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: must be true or false, got {shown(value)}")
+    return value
+
+
+def number(value: Any, where: str) -> float:
+    """A finite number (an integer too, if a float can hold it); never a boolean."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: must be a number, got {shown(value)}")
+    try:
+        out = float(value)
+    except OverflowError:
+        raise ConfigError(f"{where}: must be a finite number, got an integer beyond the "
+                          f"range of a float ({shown(value)})") from None
+    if not math.isfinite(out):
+        raise ConfigError(f"{where}: must be finite, got {shown(value)}")
+    return out
+
+
+def integer(value: Any, where: str) -> int:
+    """An integer of at most :data:`MAX_INT` in magnitude; never a boolean."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: must be an integer, got {shown(value)}")
+    if abs(value) > MAX_INT:
+        raise ConfigError(f"{where}: must be an integer from -{MAX_INT} to {MAX_INT}, got "
+                          f"{shown(value)}")
+    return value
 
 
 def _coerce(section: str, name: str, default: Any, value: Any) -> Any:
     where = f"[{section}] {name}"
     if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: must be true or false, got {value!r}")
-        return value
+        return flag(value, where)
     if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: must be an integer, got {value!r}")
-        return value
+        return integer(value, where)
     if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: must be finite, got {value!r}")
-        return float(value)
+        return number(value, where)
     if isinstance(default, str):
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: must be a string, got {value!r}")
+            raise ConfigError(f"{where}: must be a string, got {shown(value)}")
         return value
     if isinstance(default, tuple):
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: must be a list, got {value!r}")
+            raise ConfigError(f"{where}: must be a list, got {shown(value)}")
         if default and isinstance(default[0], float):
             if len(value) != len(default):
-                raise ConfigError(f"{where}: must be {len(default)} numbers, got {value!r}")
+                raise ConfigError(f"{where}: must be {len(default)} numbers, got {shown(value)}")
             return tuple(_coerce(section, name, 0.0, v) for v in value)
         return tuple(_coerce(section, name, "", v) for v in value)
     raise ConfigError(f"{where}: unsupported setting type")  # pragma: no cover
@@ -213,7 +274,7 @@ def from_dict(data: dict[str, Any], base: Config | None = None) -> Config:
         raise ConfigError("configuration must be a table")
     for section, values in data.items():
         if section not in _SECTION_TYPES:
-            raise ConfigError(f"[{section}]: unknown section (known: {', '.join(_SECTION_TYPES)})")
+            raise unknown_section(section, SECTIONS, "known")
         if not isinstance(values, dict):
             raise ConfigError(f"[{section}]: must be a table")
         current = getattr(cfg, section)
@@ -221,8 +282,9 @@ def from_dict(data: dict[str, Any], base: Config | None = None) -> Config:
         updates = {}
         for name, value in values.items():
             if name not in known:
-                raise ConfigError(f"[{section}] {name}: unknown setting "
-                                  f"(known: {', '.join(sorted(known))})")
+                raise ConfigError(f"[{section}] {short(name)}: unknown setting "
+                                  f"{short(name)!r} ({hint(name, sorted(known))}known: "
+                                  f"{', '.join(sorted(known))})")
             updates[name] = _coerce(section, name, getattr(current, name), value)
         cfg = replace(cfg, **{section: replace(current, **updates)})
     validate(cfg)

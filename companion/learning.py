@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -15,6 +14,7 @@ import numpy as np
 from companion.autopilot import Autopilot
 from companion.config import Config
 from companion.estimator import UncertaintyEstimator
+from companion.reconfigure import parse_estimator_request
 from companion.status import Reporter, after_setpoint
 
 
@@ -64,27 +64,16 @@ class Learning:
             if est is None:
                 raise ValueError("the in-flight estimator is disabled ([estimator] enabled)")
             if request is not None:
-                if not isinstance(request, dict) or not set(request) <= {"reset", "freeze",
-                                                                          "set"}:
-                    raise ValueError('request must be {"reset": true}, {"freeze": true|false}'
-                                     ' or {"set": {"m": number, "b": number[, "memory_s": '
-                                     'number]}}')
-                if request.get("reset"):
+                # checked whole first (companion.reconfigure): a refused part applies nothing
+                req = parse_estimator_request(request, file_cfg)
+                if req.reset:
                     est.reset()
                     message = "estimate reset to the configured model"
-                if "freeze" in request:
-                    if not isinstance(request["freeze"], bool):
-                        raise ValueError("freeze: must be true or false")
-                    est.freeze(request["freeze"])
-                    message = f"estimator {'frozen' if request['freeze'] else 'learning'}"
-                if "set" in request:
-                    m, b, memory = _model(request["set"])
-                    u = file_cfg.uncertainty if file_cfg is not None else None
-                    if u is not None and (m < u.m or b < u.b or (
-                            memory is not None and memory < u.memory_s)):
-                        raise ValueError(f"m={m}, b={b}, memory_s={memory} refused: a set may "
-                                         f"only be as cautious as the config file's m={u.m}, "
-                                         f"b={u.b}, memory_s={u.memory_s} or more")
+                if req.freeze is not None:
+                    est.freeze(req.freeze)
+                    message = f"estimator {'frozen' if req.freeze else 'learning'}"
+                if req.set is not None:
+                    m, b, memory = req.set
                     est.set(m, b, memory)
                     message = f"estimate set to m={m}, b={b}" + (
                         "" if memory is None else f", memory_s={memory}")
@@ -100,18 +89,3 @@ class Learning:
             with contextlib.suppress(OSError):
                 self.estimator.save()
 
-
-def _model(values: Any) -> tuple[float, float, float | None]:
-    """(m, b, memory_s or None) of a set request, finite numbers."""
-    if not isinstance(values, dict) or not {"m", "b"} <= set(values) <= {"m", "b", "memory_s"}:
-        raise ValueError('set: must be {"m": number, "b": number[, "memory_s": number]}')
-    out = []
-    for name in ("m", "b", "memory_s"):
-        v = values.get(name)
-        if name == "memory_s" and v is None:
-            out.append(None)
-            continue
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise ValueError(f"set: {name} must be a finite number, got {v!r}")
-        out.append(float(v))
-    return out[0], out[1], out[2]

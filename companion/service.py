@@ -36,7 +36,7 @@ import zenoh
 from companion import messages as msgs
 from companion.autopilot import Autopilot, AutopilotError
 from companion.commander import Commander, State
-from companion.config import Config, ConfigError
+from companion.config import Config, ConfigError, short
 from companion.decoder import DecodeFn, Decoder
 from companion.estimator import UncertaintyEstimator
 from companion.inputs import Handlers, Inputs
@@ -311,6 +311,7 @@ class Service:
         log.info("map: %d occupied voxels at %.2f m", len(vmap), vmap.resolution)
 
     async def _on_command(self, name: str, request: Any, peer: str) -> bytes:  # noqa: ARG002
+        name = short(name)  # (a 10,000-character name is not copied into status and log)
         try:
             message = await self.commander.run(name)
             answer = msgs.reply(name, True, message or "", state=self.commander.state.value)

@@ -79,7 +79,8 @@ def test_the_refusal_names_the_allowed_range():
     with pytest.raises(ConfigError) as err:
         rc.apply({"set": {"limits": {"v_max": 15.0}}}, "p")
     assert str(err.value) == ("[limits] v_max: 15.0 refused; allowed: at most 2.0 (the config "
-                              "file's value)")
+                              "file's value), as a lower limit can only slow the flight (it "
+                              "also caps every braking-point limit)")
 
 
 @pytest.mark.parametrize(("section", "name", "value"), [
