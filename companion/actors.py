@@ -27,22 +27,12 @@ from typing import Any
 
 import zenoh
 
+from companion.config import short
+
 log = logging.getLogger("rota.companion")
 
 #: Least time between two look-ups of this session's links for an unknown id, s.
 REFRESH_S = 0.5
-#: Longest name of a command or peer carried into a log line or a status message.
-MAX_NAME = 64
-
-
-def capped(text: str, limit: int = MAX_NAME) -> str:
-    """``text`` cut to ``limit`` characters, saying how long it was."""
-    text = str(text)
-    if len(text) <= limit:
-        return text
-    return f"{text[:limit]}... ({len(text)} characters)"
-
-
 @dataclass(frozen=True)
 class Link:
     """A link of this session to another Zenoh peer (or router)."""
@@ -72,7 +62,7 @@ class Actor:
     def __str__(self) -> str:
         if self.link is not None:
             if self.link.name:
-                return f"{capped(self.link.name)} (Zenoh peer {self.zid})"
+                return f"{short(self.link.name)} (Zenoh peer {self.zid})"
             return f"Zenoh peer {self.zid} (unauthenticated link {self.link.remote})"
         declared = f"Zenoh peer {self.zid} (declared, not a direct link)" if self.zid \
             else "a Zenoh peer that declared no id"

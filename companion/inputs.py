@@ -28,8 +28,8 @@ from typing import Any
 import zenoh
 
 from companion import messages as msgs
-from companion.actors import Actor, Peers, capped
-from companion.config import Config
+from companion.actors import Actor, Peers
+from companion.config import Config, short
 from companion.decoder import DecodeFn, Decoder
 from companion.outbox import Send, send_now
 from companion.status import Reporter
@@ -222,7 +222,7 @@ class Inputs:
         """An accepted put on record: in the flight record's ``log`` channel every
         time, in the log the first time each peer sends each kind."""
         ident = getattr(obj, "id", None)
-        message = f"{what}{f' {capped(ident)!r}' if ident else ''} ({size} bytes) from {actor}"
+        message = f"{what}{f' {short(ident)!r}' if ident else ''} ({size} bytes) from {actor}"
         key = (what, actor.zid, actor.name)
         if key not in self._seen and len(self._seen) < 1000:  # (made-up ids: bounded)
             self._seen.add(key)
@@ -273,9 +273,9 @@ class Inputs:
             ok, words = bool(answer.get("ok")), str(answer.get("message") or "")
         except (ValueError, AttributeError):
             ok, words = False, "unreadable reply"
-        request = f"cmd/{capped(name)}" if what == "cmd" else what
+        request = f"cmd/{short(name)}" if what == "cmd" else what
         log.log(logging.INFO if ok else logging.WARNING, "%s from %s: %s%s", request, actor,
-                "done" if ok else "refused", f": {capped(words, 300)}" if words else "")
+                "done" if ok else "refused", f": {short(words, 300)}" if words else "")
 
     async def report_drops(self) -> None:
         """Once a second: what was dropped or refused, in one error (a task)."""
