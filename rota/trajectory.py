@@ -304,6 +304,20 @@ def _segment_end(c: FloatArray, durs: FloatArray, j: int, order: int) -> FloatAr
     return (coef * s ** powers[:, None]).sum(axis=0)
 
 
+def quintic_hermite(h: FloatArray, p: FloatArray, v: FloatArray, a: FloatArray) -> FloatArray:
+    """Bernstein coefficients ``(6, n - 1, 3)`` of the quintic Hermite spline through
+    samples ``p``, ``v``, ``a`` (``n`` rows) with interval lengths ``h``: what
+    ``scipy.interpolate.BPoly.from_derivatives`` builds, in closed form and vectorised
+    (it loops in Python over every interval and axis: 13 ms for 300 samples, the
+    bulk of decoding a planner's message). A degree-5 Bernstein polynomial on an
+    interval of length h has B'(0) = 5 (c1 - c0) / h and B''(0) = 20 (c2 - 2 c1 + c0)
+    / h^2, and the mirror images at its end."""
+    h = h[:, None]
+    p0, v0, a0, p1, v1, a1 = p[:-1], v[:-1], a[:-1], p[1:], v[1:], a[1:]
+    return np.stack([p0, p0 + h * v0 / 5.0, p0 + 2.0 * h * v0 / 5.0 + h * h * a0 / 20.0,
+                     p1 - 2.0 * h * v1 / 5.0 + h * h * a1 / 20.0, p1 - h * v1 / 5.0, p1])
+
+
 @dataclass(frozen=True)
 class SampledTrajectory(Trajectory):
     """Time-stamped samples ``t`` (strictly increasing), ``p`` and optional ``v``, ``a``.
@@ -349,8 +363,7 @@ class SampledTrajectory(Trajectory):
                 raise InputError("a", f"must have the shape of p {p.shape}, got {a.shape}")
         object.__setattr__(self, "v", v)
         object.__setattr__(self, "a", a)
-        y = np.stack([p, v, a], axis=1)  # (n, 3 derivatives, 3 axes)
-        self._set_spline(interpolate.BPoly.from_derivatives(t, y, extrapolate=False))
+        self._set_spline(interpolate.BPoly(quintic_hermite(dt, p, v, a), t, extrapolate=False))
 
     @property
     def domain(self) -> tuple[float, float]:
