@@ -171,6 +171,10 @@ def cmd_soak(args: argparse.Namespace) -> int:
         print(f"  RSS at {t:7.1f} s: {mb:.1f} MB")
     for e in figures.errors[:20]:
         print(f"  error: {e}")
+    for what, usage in (("replanning at 10 Hz", figures.replanning),
+                        ("holding, no replans", figures.holding)):
+        if usage is not None:
+            print(f"footprint of the service's process tree, {what}:\n{usage.table()}")
     if args.out:
         from dataclasses import asdict
 

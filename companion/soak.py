@@ -2,7 +2,9 @@
 N minutes while a planner replans at 10 Hz (every replan re-timed and flown),
 and reports what a long flight does to it: memory (the service process after a
 warm-up minute, then at the end), errors, replans flown, and the setpoint
-stream as the vehicle received it.
+stream as the vehicle received it; and the footprint of the service's whole
+process tree (:mod:`sitl.footprint`): CPU and memory while replanning after the
+warm-up, and while holding with no replans afterwards.
 """
 
 from __future__ import annotations
@@ -15,9 +17,12 @@ from typing import Any
 import numpy as np
 
 from companion.proving import Flight, statuses_errors
+from sitl.footprint import Meter, Usage
 
 REPLAN_HZ = 10.0
 WARM_UP_S = 60.0
+#: How long the footprint is measured while holding, after the replans, s.
+HOLD_S = 30.0
 
 
 @dataclass
@@ -30,6 +35,8 @@ class SoakFigures:
     stream: dict[str, Any] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     collisions: int = 0
+    replanning: Usage | None = None  #: the service's tree while replanning (after warm-up)
+    holding: Usage | None = None  #: the same, holding with no replans
 
     @property
     def rss_growth(self) -> float:
@@ -61,7 +68,12 @@ def run_soak(minutes: float, speed: float = 2.0, seed: int = 0) -> SoakFigures:
         flown: set[str] = set()
         next_rss = start
         k = 0
+        meter = Meter(flight.service.pid)
+        metered = False
         while (now := time.monotonic()) < end:
+            if not metered and now - start >= min(WARM_UP_S, 0.3 * (end - start)):
+                meter.start()
+                metered = True
             k += 1
             flight.replan(f"soak-{k}", duration_s=30.0)
             figures.replans_sent += 1
@@ -72,8 +84,17 @@ def run_soak(minutes: float, speed: float = 2.0, seed: int = 0) -> SoakFigures:
             await asyncio.sleep(max(0.0, start + k / REPLAN_HZ - time.monotonic()))
         figures.rss_mb.append((round(time.monotonic() - start, 1),
                                round(flight.service.rss_mb(), 1)))
+        figures.replanning = meter.stop() if metered else None
         figures.replans_flown = len(flown - {""})
         figures.errors = statuses_errors(gs.statuses)
+        reply = await flight.gs.command("hold")
+        if not reply["ok"]:  # (the flight above broke a promise: it is in the errors)
+            figures.problems.append(f"could not hold for the footprint: {reply['message']}")
+            return start, end
+        await asyncio.sleep(2.0)  # (the last re-time and its hand-over settle)
+        meter.start()
+        await asyncio.sleep(HOLD_S)
+        figures.holding = meter.stop()
         return start, end
 
     with flight:
@@ -81,7 +102,7 @@ def run_soak(minutes: float, speed: float = 2.0, seed: int = 0) -> SoakFigures:
     report = flight.sim.report
     stream = flight.figures(window, report.setpoints)
     figures.stream = asdict(stream) | {"summary": stream.summary()}
-    figures.problems = stream.problems()
+    figures.problems += stream.problems()
     figures.collisions = len(report.collisions)
     if not np.isfinite(figures.rss_growth) or figures.rss_growth > 0.05:
         figures.problems.append(f"RSS grew {100 * figures.rss_growth:.1f} % after warm-up")
