@@ -15,12 +15,15 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from companion import memory
 from companion import messages as msgs
 from companion.config import Config
 from companion.worker import Worker, WorkerDied
 
 log = logging.getLogger("rota.companion")
 
+#: A payload at least this large leaves memory to give back (:mod:`companion.memory`).
+LARGE_BYTES = 1_000_000
 #: Values a query (command, config, estimator) may hold.
 MAX_QUERY_ITEMS = 1000
 
@@ -42,7 +45,8 @@ DECODERS: dict[str, DecodeFn] = {
 
 
 def _run(fn: DecodeFn, what: str, payload: bytes, cfg: Config, now: float) -> Any:
-    """In the worker: ``fn``, with every failure turned into Rejected."""
+    """In the worker: ``fn``, with every failure turned into Rejected; after a large
+    payload, the memory it took is given back."""
     try:
         return fn(payload, cfg, now)
     except msgs.Rejected:
@@ -54,6 +58,9 @@ def _run(fn: DecodeFn, what: str, payload: bytes, cfg: Config, now: float) -> An
     except Exception as exc:  # noqa: BLE001 - any decoder failure is the message's fault
         raise msgs.Rejected(f"{what}: could not be decoded ({type(exc).__name__}: "
                             f"{str(exc)[:200]})") from None
+    finally:
+        if len(payload) >= LARGE_BYTES:  # (the payload itself is mapped: freed by its owner)
+            memory.trim()
 
 
 class Decoder:

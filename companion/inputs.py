@@ -27,6 +27,7 @@ from typing import Any
 
 import zenoh
 
+from companion import memory
 from companion import messages as msgs
 from companion.actors import Actor, Peers
 from companion.config import Config, short
@@ -38,6 +39,12 @@ log = logging.getLogger("rota.companion")
 
 #: Larger puts are recorded by size only (the flight record's writer is a thread).
 RECORD_MAX_BYTES = 1_000_000
+#: An input at least this large leaves memory to give back (:mod:`companion.memory`).
+LARGE_BYTES = 1_000_000
+#: After a large input, free memory is returned this often, s, until ...
+TRIM_EVERY_S = 5.0
+#: ... this long after the last large input, s.
+TRIM_FOR_S = 15.0
 #: Puts of each kind waiting for the decoder; older ones are dropped (counted).
 BACKLOG = {"trajectory": 4, "map": 1}
 
@@ -107,6 +114,7 @@ class Inputs:
         #: the flight record: every put as received (``record(channel, payload)``)
         self.record: Callable[[str, Any], None] = lambda channel, payload: None
         self.peers = Peers(session)
+        self._last_large = self._last_trim = -1e9  # monotonic times
         self._objs: list[Any] = [
             session.declare_subscriber(key("trajectory"), self._put("trajectory")),
             session.declare_subscriber(key("map"), self._put("map")),
@@ -132,6 +140,8 @@ class Inputs:
               actor: Actor = NOBODY) -> bool:
         """The constant-time checks of an input of ``size`` bytes (any thread)."""
         sender = "" if actor is NOBODY else f" (from {actor})"
+        if size >= LARGE_BYTES:  # (reassembled by Zenoh, refused or not: memory to give back)
+            self._last_large = time.monotonic()
         if size > cap:
             self._drop(what, f"over the {cap}-byte cap{sender}")
             return False
@@ -210,13 +220,20 @@ class Inputs:
                 await wake.wait()
                 continue
             payload, fn, actor = queue.popleft()
+            size = len(payload)
             try:
                 obj = await self._decoder.decode(what, payload, fn)
+            except msgs.Rejected as exc:
+                self.report.error(what, f"{exc} (from {actor})")
+                continue
+            finally:
+                payload = None  # (not held while this task waits for the next: up to the cap)
+            try:
                 handler(obj)
             except msgs.Rejected as exc:
                 self.report.error(what, f"{exc} (from {actor})")
                 continue
-            self._accepted(what, obj, len(payload), actor)
+            self._accepted(what, obj, size, actor)
 
     def _accepted(self, what: str, obj: Any, size: int, actor: Actor) -> None:
         """An accepted put on record: in the flight record's ``log`` channel every
@@ -278,9 +295,16 @@ class Inputs:
                 "done" if ok else "refused", f": {short(words, 300)}" if words else "")
 
     async def report_drops(self) -> None:
-        """Once a second: what was dropped or refused, in one error (a task)."""
+        """Once a second: what was dropped or refused, in one error (a task); and
+        after a large input, free memory returned to the system (in a thread:
+        ``malloc_trim`` takes each allocator arena's lock in turn)."""
+        loop = asyncio.get_running_loop()
         while True:
             await asyncio.sleep(1.0)
+            now = time.monotonic()
+            if now - self._last_large < TRIM_FOR_S and now - self._last_trim >= TRIM_EVERY_S:
+                self._last_trim = now
+                await loop.run_in_executor(None, memory.trim)
             with self._drops_lock:
                 drops, self._drops = self._drops, Counter()
             # a newer message superseding an older one is how a fast planner works;

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from companion import memory
 from companion import messages as msgs
 from companion.autopilot import Autopilot, AutopilotError
 from companion.commander import Commander, State
@@ -129,6 +130,7 @@ class Service:
         # MAVSDK, Zenoh and the worker pool run Python threads too; hand the GIL
         # over every 1 ms (default 5 ms) so the setpoint loop is not kept waiting.
         sys.setswitchinterval(0.001)
+        memory.fix_mmap_threshold()  # (a large input's memory goes back when it is freed)
         z = zenoh_config(self.cfg)
         self.exposed = check_exposure(self.cfg, z)  # refuses an exposed service
         for problem in self.exposed:

@@ -20,6 +20,8 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
 
+from companion import memory
+
 T = TypeVar("T")
 
 #: Worker processes run this many nice levels below the service (the setpoint
@@ -47,6 +49,7 @@ def _init() -> None:
     # Ctrl-C in a terminal goes to the whole process group: the service decides
     # when its workers stop, a KeyboardInterrupt traceback in one helps nobody
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    memory.fix_mmap_threshold()  # (a large input's memory goes back when it is freed)
 
 
 def describe_exit(code: int | None) -> str:
