@@ -30,6 +30,8 @@ from typing import Any
 
 LOOPBACK_PORT = 7447
 TLS_PORT = 7448
+#: Seek no one: no multicast scouting, no connecting to addresses other peers gossip.
+NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
 
 
 class FleetError(RuntimeError):
@@ -107,27 +109,39 @@ def _tls(directory: str) -> dict[str, Any]:
 
 def access_control(prefix: str, vehicle: str, ground_stations: Sequence[str],
                    planner: str) -> dict[str, Any]:
-    """The vehicle's Zenoh access control: deny by default; the rules below."""
+    """The vehicle's Zenoh access control: deny by default; the rules below.
+
+    Only the vehicle speaks for the vehicle: its outputs (``status``,
+    ``telemetry``, ``retimed``, the ``alive`` token) and its queryables may only
+    leave it (egress); no member may put, declare or answer on them towards it
+    (ingress), so no forgery reaches a ground station through the vehicle."""
     k = f"{prefix}/{vehicle}"
     out = [f"{k}/status", f"{k}/telemetry", f"{k}/retimed"]
+    alive = [f"{k}/alive", f"{prefix}/*/alive"]
+    asked = [f"{k}/cmd/*", f"{k}/config", f"{k}/estimator"]
     rules = [
-        {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["declare_subscriber", "put"], "key_exprs": out},
-        {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
-                      "reply"], "key_exprs": [f"{k}/alive", f"{prefix}/*/alive"]},
+        {"id": "read", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_subscriber"], "key_exprs": out},
+        {"id": "outputs", "permission": "allow", "flows": ["egress"], "messages": ["put"],
+         "key_exprs": out},
+        {"id": "alive", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_liveliness_subscriber", "liveliness_query"], "key_exprs": alive},
+        {"id": "alive-out", "permission": "allow", "flows": ["egress"],
+         "messages": ["liveliness_token", "reply"], "key_exprs": [f"{k}/alive"]},
         {"id": "plan", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
          "key_exprs": [f"{k}/trajectory", f"{k}/map"]},
-        {"id": "command", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["query", "reply", "declare_queryable"],
-         "key_exprs": [f"{k}/cmd/*", f"{k}/config", f"{k}/estimator"]},
+        {"id": "command", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": asked},
+        {"id": "answer", "permission": "allow", "flows": ["egress"],
+         "messages": ["reply", "declare_queryable"], "key_exprs": asked},
     ]
     subjects = [{"id": "ground-stations", "cert_common_names": list(ground_stations)},
                 {"id": "planner", "cert_common_names": [planner]},
                 # a planner on the vehicle's own computer: the plain loopback listener
                 {"id": "local", "interfaces": ["lo"], "link_protocols": ["tcp"]}]
-    policies = [{"rules": ["read", "alive", "command", "plan"], "subjects": ["ground-stations"]},
-                {"rules": ["read", "alive", "plan"], "subjects": ["planner", "local"]}]
+    seen = ["read", "outputs", "alive", "alive-out"]
+    policies = [{"rules": [*seen, "command", "answer", "plan"], "subjects": ["ground-stations"]},
+                {"rules": [*seen, "plan"], "subjects": ["planner", "local"]}]
     return {"enabled": True, "default_permission": "deny", "rules": rules,
             "subjects": subjects, "policies": policies}
 
@@ -142,7 +156,7 @@ def vehicle_config(fleet: Fleet, vehicle: str, directory: str) -> dict[str, Any]
         "mode": "peer",
         "listen": {"endpoints": [f"tcp/127.0.0.1:{fleet.loopback_port}",
                                  f"tls/0.0.0.0:{fleet.tls_port}"]},
-        "scouting": {"multicast": {"enabled": False}},
+        "scouting": NO_SCOUTING,
         "transport": {"link": {"tls": _tls(directory)}},
         "access_control": access_control(fleet.key_prefix, vehicle, fleet.ground_stations,
                                           f"planner-{vehicle}"),
@@ -151,7 +165,7 @@ def vehicle_config(fleet: Fleet, vehicle: str, directory: str) -> dict[str, Any]
 
 def client_config(endpoints: Sequence[str], directory: str) -> dict[str, Any]:
     return {"mode": "client", "connect": {"endpoints": list(endpoints)},
-            "scouting": {"multicast": {"enabled": False}},
+            "scouting": NO_SCOUTING,
             "transport": {"link": {"tls": _tls(directory)}}}
 
 
