@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 from collections.abc import Sequence
@@ -38,6 +39,20 @@ class FleetError(RuntimeError):
     """The fleet could not be made; the message says why."""
 
 
+class FleetNameError(FleetError, ValueError):
+    """A member's name (or a vehicle's host) is not allowed; the message says which."""
+
+
+#: A member's name: its directory, its certificate's common name, a Zenoh key part.
+NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")
+#: Where a vehicle is reached: a host name or an IP address (it goes into Zenoh
+#: endpoints, where ``#``, ``?`` or ``/`` would change their meaning).
+HOST = re.compile(r"[A-Za-z0-9.-]{1,253}|\[[0-9A-Fa-f:.]{2,45}\]")
+#: Directory names the fleet uses itself.
+RESERVED = ("ca",)
+PLANNER = "planner-"
+
+
 @dataclass(frozen=True)
 class Fleet:
     """What to make: vehicle ids, ground-station names, and where vehicles are
@@ -53,6 +68,53 @@ class Fleet:
 
     def host(self, vehicle: str) -> str:
         return self.hosts.get(vehicle, f"{vehicle}.local")
+
+
+def check_names(fleet: Fleet, root: Path | None = None) -> None:
+    """Refuse names that would collide or escape: each a safe name
+    (``[A-Za-z0-9_-]``, 1-32 characters), not ``ca``, not a planner's
+    (``planner-...``), used once across vehicles and ground stations, and not
+    already another kind of member in the fleet at ``root``; hosts only of the
+    vehicles, each a plain host name or address. Raises :class:`FleetNameError`."""
+    if not fleet.vehicles:
+        raise FleetNameError("no vehicles given")
+    seen: dict[str, str] = {}
+    for kind, names in (("vehicle", fleet.vehicles), ("ground station", fleet.ground_stations)):
+        for name in names:
+            if not NAME.fullmatch(name):
+                raise FleetNameError(f"{kind} name {name[:40]!r}: use 1-32 letters, digits, "
+                                     "'_' or '-'")
+            if name.lower() in RESERVED or name.startswith(PLANNER):
+                raise FleetNameError(f"{kind} name {name!r} is reserved (the fleet's own "
+                                     f"'ca' directory and planner names '{PLANNER}<vehicle>')")
+            if name in seen:
+                raise FleetNameError(
+                    f"{kind} name {name!r} is given twice" if seen[name] == kind else
+                    f"{name!r} is both a {seen[name]} and a {kind} (the ground stations are "
+                    "'gs' unless --ground-stations says otherwise): each member needs its "
+                    "own name, or its certificate gives it the other's rights")
+            seen[name] = kind
+            was = _member_kind(root / name) if root is not None else None
+            if was is not None and was != kind:
+                raise FleetNameError(f"{kind} name {name!r} is already a {was} of this fleet: "
+                                     "its certificate would give one the other's rights")
+    for vehicle, host in fleet.hosts.items():
+        if vehicle not in fleet.vehicles:
+            raise FleetNameError(f"--host {vehicle}={host[:40]}: {vehicle!r} is not one of "
+                                 "the vehicles")
+        if not HOST.fullmatch(host):
+            raise FleetNameError(f"--host {vehicle}={host[:40]!r}: not a host name or IP "
+                                 "address")
+
+
+def _member_kind(directory: Path) -> str | None:
+    """What an existing member directory of a fleet is (None: none there)."""
+    if (directory / "zenoh.json5").is_file():
+        return "vehicle" if "of vehicle " in (directory / "zenoh.json5").read_text()[:200] \
+            else "planner"
+    if any(directory.glob("zenoh-*.json5")):
+        return "ground station"
+    return None
 
 
 def _openssl(*args: str, cwd: Path) -> None:
@@ -174,6 +236,7 @@ def make_fleet(fleet: Fleet, out: str | Path, install_dir: str | None = None) ->
     ``install_dir``: where each member's directory will live on its computer
     (default: where it is made), as the configs name their files."""
     root = Path(out).resolve()
+    check_names(fleet, root)
     ca = root / "ca"
     make_ca(ca, fleet.days)
     written = []
@@ -183,9 +246,9 @@ def make_fleet(fleet: Fleet, out: str | Path, install_dir: str | None = None) ->
 
     for v in fleet.vehicles:
         host = fleet.host(v)
-        is_ip = host.replace(".", "").isdigit() or ":" in host
+        is_ip = host.replace(".", "").isdigit() or host.startswith("[")
         make_member(ca, root / v, v, fleet.days, names=() if is_ip else (host,),
-                    ips=("127.0.0.1", *((host,) if is_ip else ())))
+                    ips=("127.0.0.1", *((host.strip("[]"),) if is_ip else ())))
         _write(root / v / "zenoh.json5", f"Zenoh configuration of vehicle {v}",
                vehicle_config(fleet, v, where(v)))
         written.append(root / v / "zenoh.json5")
