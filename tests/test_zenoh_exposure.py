@@ -243,3 +243,34 @@ def test_a_stranger_on_the_network_reaches_only_the_scouting_service():
     # embedded default gets ten times as long, and at least 5 s, to be reached.
     window = max(5.0, 10 * reached)
     assert _stranger_reaches(embedded, window) is None, (reached, time.monotonic() - t0)
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(300)
+def test_an_insecure_service_says_so_on_every_status(tmp_path):
+    """``insecure = true`` with a plain listener on every interface (no traffic
+    leaves this machine: the ground station connects on loopback): the service
+    starts, and every status it sends names each way in as INSECURE."""
+    from companion.proving import Flight
+
+    path = tmp_path / "zenoh.json5"
+    flight = Flight(workdir=str(tmp_path / "run"),
+                    zenoh={"config_file": str(path), "insecure": True})
+    path.write_text(json.dumps({"mode": "peer", "scouting": OFF, "listen": {
+        "endpoints": [f"tcp/0.0.0.0:{flight.zenoh_port}"]}}))
+    expected = exposure(flight.cfg)
+    assert len(expected) == 2  # the plain listener, and no access control
+
+    async def until_ready(f: Flight) -> None:
+        await f.gs.wait_for(lambda s: s["state"] == "ready", 90, "the vehicle to be ready")
+        await f.gs.wait_for(lambda s: True, 10, "one more status", fresh=True)
+
+    import asyncio
+
+    with flight:
+        asyncio.run(until_ready(flight))
+        statuses = list(flight.gs.statuses)
+    assert len(statuses) >= 2
+    for s in statuses:
+        assert s["insecure"] == expected, s
+        assert s["warnings"][:2] == [f"INSECURE: {p}" for p in expected], s["warnings"]
