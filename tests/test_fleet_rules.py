@@ -119,6 +119,8 @@ def test_no_member_nor_local_process_speaks_for_the_vehicle(fleet):
             s.put("rota/sim/status", json.dumps({"state": f"forged by {who}"}))
             s.put("rota/sim/telemetry", json.dumps({"setpoint": {"position": [99, 99, 99]},
                                                    "by": who}))
+        for who in ("planner", "local process", "other vehicle"):
+            forgers[who].put("rota/sim/trajectory", f"plan from {who}".encode())
         vehicle.status("real, after the forgeries")
         _wait(lambda: gs.status.get("state") == "real, after the forgeries", "the next status")
         time.sleep(SETTLE_S)  # any forgery would have arrived by now
@@ -132,6 +134,12 @@ def test_no_member_nor_local_process_speaks_for_the_vehicle(fleet):
             "forged" in m or "99" in m for m in heard_by_vehicle), heard_by_vehicle
         assert [(v.id, v.zid) for v in vehicles] == [("sim", str(vehicle.session.zid()))]
         assert answers == [], answers
+        # the planners' path is open (so the denials above are the rules, not a dead
+        # link): the planner's and the local process's trajectories arrive, not a
+        # stranger's of the fleet
+        _wait(lambda: {"plan from planner", "plan from local process"} <= set(heard_by_vehicle),
+              "the planners' trajectories")
+        assert "plan from other vehicle" not in heard_by_vehicle
         assert gs.vehicle_zid == str(vehicle.session.zid())
         del tokens, fake_config, taps
     finally:
