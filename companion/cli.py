@@ -202,14 +202,18 @@ def cmd_fuzz(args: argparse.Namespace) -> int:
     bad = figures.crashed or unsafe or stream.problems() or figures.replies < figures.queries
     return 1 if bad else 0
 def cmd_fleet(args: argparse.Namespace) -> int:
-    from companion.fleet import Fleet, FleetError, make_fleet
+    from companion.fleet import Fleet, FleetError, FleetNameError, make_fleet
 
+    if any("=" not in h for h in args.host):
+        raise UsageError("--host takes VEHICLE=HOST, e.g. --host drone1=10.0.0.11")
     hosts = dict(h.split("=", 1) for h in args.host)
     fleet = Fleet(vehicles=tuple(args.vehicles.split(",")),
                   ground_stations=tuple(args.ground_stations.split(",")), hosts=hosts,
                   days=args.days)
     try:
         written = make_fleet(fleet, args.dir, args.install_dir)
+    except FleetNameError as exc:
+        raise UsageError(str(exc)) from None
     except FleetError as exc:
         raise RunError(str(exc)) from None
     for path in written:

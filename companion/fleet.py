@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 from collections.abc import Sequence
@@ -30,10 +31,26 @@ from typing import Any
 
 LOOPBACK_PORT = 7447
 TLS_PORT = 7448
+#: Seek no one: no multicast scouting, no connecting to addresses other peers gossip.
+NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
 
 
 class FleetError(RuntimeError):
     """The fleet could not be made; the message says why."""
+
+
+class FleetNameError(FleetError, ValueError):
+    """A member's name (or a vehicle's host) is not allowed; the message says which."""
+
+
+#: A member's name: its directory, its certificate's common name, a Zenoh key part.
+NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")
+#: Where a vehicle is reached: a host name or an IP address (it goes into Zenoh
+#: endpoints, where ``#``, ``?`` or ``/`` would change their meaning).
+HOST = re.compile(r"[A-Za-z0-9.-]{1,253}|\[[0-9A-Fa-f:.]{2,45}\]")
+#: Directory names the fleet uses itself.
+RESERVED = ("ca",)
+PLANNER = "planner-"
 
 
 @dataclass(frozen=True)
@@ -51,6 +68,53 @@ class Fleet:
 
     def host(self, vehicle: str) -> str:
         return self.hosts.get(vehicle, f"{vehicle}.local")
+
+
+def check_names(fleet: Fleet, root: Path | None = None) -> None:
+    """Refuse names that would collide or escape: each a safe name
+    (``[A-Za-z0-9_-]``, 1-32 characters), not ``ca``, not a planner's
+    (``planner-...``), used once across vehicles and ground stations, and not
+    already another kind of member in the fleet at ``root``; hosts only of the
+    vehicles, each a plain host name or address. Raises :class:`FleetNameError`."""
+    if not fleet.vehicles:
+        raise FleetNameError("no vehicles given")
+    seen: dict[str, str] = {}
+    for kind, names in (("vehicle", fleet.vehicles), ("ground station", fleet.ground_stations)):
+        for name in names:
+            if not NAME.fullmatch(name):
+                raise FleetNameError(f"{kind} name {name[:40]!r}: use 1-32 letters, digits, "
+                                     "'_' or '-'")
+            if name.lower() in RESERVED or name.startswith(PLANNER):
+                raise FleetNameError(f"{kind} name {name!r} is reserved (the fleet's own "
+                                     f"'ca' directory and planner names '{PLANNER}<vehicle>')")
+            if name in seen:
+                raise FleetNameError(
+                    f"{kind} name {name!r} is given twice" if seen[name] == kind else
+                    f"{name!r} is both a {seen[name]} and a {kind} (the ground stations are "
+                    "'gs' unless --ground-stations says otherwise): each member needs its "
+                    "own name, or its certificate gives it the other's rights")
+            seen[name] = kind
+            was = _member_kind(root / name) if root is not None else None
+            if was is not None and was != kind:
+                raise FleetNameError(f"{kind} name {name!r} is already a {was} of this fleet: "
+                                     "its certificate would give one the other's rights")
+    for vehicle, host in fleet.hosts.items():
+        if vehicle not in fleet.vehicles:
+            raise FleetNameError(f"--host {vehicle}={host[:40]}: {vehicle!r} is not one of "
+                                 "the vehicles")
+        if not HOST.fullmatch(host):
+            raise FleetNameError(f"--host {vehicle}={host[:40]!r}: not a host name or IP "
+                                 "address")
+
+
+def _member_kind(directory: Path) -> str | None:
+    """What an existing member directory of a fleet is (None: none there)."""
+    if (directory / "zenoh.json5").is_file():
+        return "vehicle" if "of vehicle " in (directory / "zenoh.json5").read_text()[:200] \
+            else "planner"
+    if any(directory.glob("zenoh-*.json5")):
+        return "ground station"
+    return None
 
 
 def _openssl(*args: str, cwd: Path) -> None:
@@ -107,27 +171,39 @@ def _tls(directory: str) -> dict[str, Any]:
 
 def access_control(prefix: str, vehicle: str, ground_stations: Sequence[str],
                    planner: str) -> dict[str, Any]:
-    """The vehicle's Zenoh access control: deny by default; the rules below."""
+    """The vehicle's Zenoh access control: deny by default; the rules below.
+
+    Only the vehicle speaks for the vehicle: its outputs (``status``,
+    ``telemetry``, ``retimed``, the ``alive`` token) and its queryables may only
+    leave it (egress); no member may put, declare or answer on them towards it
+    (ingress), so no forgery reaches a ground station through the vehicle."""
     k = f"{prefix}/{vehicle}"
     out = [f"{k}/status", f"{k}/telemetry", f"{k}/retimed"]
+    alive = [f"{k}/alive", f"{prefix}/*/alive"]
+    asked = [f"{k}/cmd/*", f"{k}/config", f"{k}/estimator"]
     rules = [
-        {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["declare_subscriber", "put"], "key_exprs": out},
-        {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
-                      "reply"], "key_exprs": [f"{k}/alive", f"{prefix}/*/alive"]},
+        {"id": "read", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_subscriber"], "key_exprs": out},
+        {"id": "outputs", "permission": "allow", "flows": ["egress"], "messages": ["put"],
+         "key_exprs": out},
+        {"id": "alive", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_liveliness_subscriber", "liveliness_query"], "key_exprs": alive},
+        {"id": "alive-out", "permission": "allow", "flows": ["egress"],
+         "messages": ["liveliness_token", "reply"], "key_exprs": [f"{k}/alive"]},
         {"id": "plan", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
          "key_exprs": [f"{k}/trajectory", f"{k}/map"]},
-        {"id": "command", "permission": "allow", "flows": ["ingress", "egress"],
-         "messages": ["query", "reply", "declare_queryable"],
-         "key_exprs": [f"{k}/cmd/*", f"{k}/config", f"{k}/estimator"]},
+        {"id": "command", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": asked},
+        {"id": "answer", "permission": "allow", "flows": ["egress"],
+         "messages": ["reply", "declare_queryable"], "key_exprs": asked},
     ]
     subjects = [{"id": "ground-stations", "cert_common_names": list(ground_stations)},
                 {"id": "planner", "cert_common_names": [planner]},
                 # a planner on the vehicle's own computer: the plain loopback listener
                 {"id": "local", "interfaces": ["lo"], "link_protocols": ["tcp"]}]
-    policies = [{"rules": ["read", "alive", "command", "plan"], "subjects": ["ground-stations"]},
-                {"rules": ["read", "alive", "plan"], "subjects": ["planner", "local"]}]
+    seen = ["read", "outputs", "alive", "alive-out"]
+    policies = [{"rules": [*seen, "command", "answer", "plan"], "subjects": ["ground-stations"]},
+                {"rules": [*seen, "plan"], "subjects": ["planner", "local"]}]
     return {"enabled": True, "default_permission": "deny", "rules": rules,
             "subjects": subjects, "policies": policies}
 
@@ -142,7 +218,7 @@ def vehicle_config(fleet: Fleet, vehicle: str, directory: str) -> dict[str, Any]
         "mode": "peer",
         "listen": {"endpoints": [f"tcp/127.0.0.1:{fleet.loopback_port}",
                                  f"tls/0.0.0.0:{fleet.tls_port}"]},
-        "scouting": {"multicast": {"enabled": False}},
+        "scouting": NO_SCOUTING,
         "transport": {"link": {"tls": _tls(directory)}},
         "access_control": access_control(fleet.key_prefix, vehicle, fleet.ground_stations,
                                           f"planner-{vehicle}"),
@@ -151,7 +227,7 @@ def vehicle_config(fleet: Fleet, vehicle: str, directory: str) -> dict[str, Any]
 
 def client_config(endpoints: Sequence[str], directory: str) -> dict[str, Any]:
     return {"mode": "client", "connect": {"endpoints": list(endpoints)},
-            "scouting": {"multicast": {"enabled": False}},
+            "scouting": NO_SCOUTING,
             "transport": {"link": {"tls": _tls(directory)}}}
 
 
@@ -160,6 +236,7 @@ def make_fleet(fleet: Fleet, out: str | Path, install_dir: str | None = None) ->
     ``install_dir``: where each member's directory will live on its computer
     (default: where it is made), as the configs name their files."""
     root = Path(out).resolve()
+    check_names(fleet, root)
     ca = root / "ca"
     make_ca(ca, fleet.days)
     written = []
@@ -169,9 +246,9 @@ def make_fleet(fleet: Fleet, out: str | Path, install_dir: str | None = None) ->
 
     for v in fleet.vehicles:
         host = fleet.host(v)
-        is_ip = host.replace(".", "").isdigit() or ":" in host
+        is_ip = host.replace(".", "").isdigit() or host.startswith("[")
         make_member(ca, root / v, v, fleet.days, names=() if is_ip else (host,),
-                    ips=("127.0.0.1", *((host,) if is_ip else ())))
+                    ips=("127.0.0.1", *((host.strip("[]"),) if is_ip else ())))
         _write(root / v / "zenoh.json5", f"Zenoh configuration of vehicle {v}",
                vehicle_config(fleet, v, where(v)))
         written.append(root / v / "zenoh.json5")

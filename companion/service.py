@@ -23,6 +23,7 @@ import asyncio
 import base64
 import contextlib
 import gc
+import itertools
 import logging
 import os
 import sys
@@ -256,7 +257,8 @@ class Service:
         self._alive = s.liveliness().declare_token(k("alive"))
         self.publisher = Publisher(pubs, self._recorded("status", self.status),
                                    self._recorded("telemetry", self.telemetry),
-                                   self._on_status, self.outbox.send)
+                                   self._on_status, self.outbox.send,
+                                   source=self._source_info(s))
         self.inputs = Inputs(s, lambda: self.cfg, asyncio.get_running_loop(), Handlers(
             trajectory=self._on_trajectory, map=self._on_map, command=self._on_command,
             config=self._on_config, estimator=self._on_estimator), self.decoder, self.report,
@@ -264,6 +266,13 @@ class Service:
         self.inputs.record = self._record_input
         if self.cfg.ros2.enabled:
             self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send)
+
+    @staticmethod
+    def _source_info(s: zenoh.Session):  # noqa: ANN205
+        """Each output names this session as its source (a ground station ignores
+        status and telemetry from any other session: docs/security.md)."""
+        sn = itertools.count(1)
+        return lambda: zenoh.SourceInfo(s.id, next(sn))
 
     def _ros2_put(self, kind: str, decode: DecodeFn, payload: bytes) -> None:
         """A ROS message, on Zenoh's thread: the inputs' byte cap and rate limit, then

@@ -110,9 +110,9 @@ class Reporter:
 
 
 
-def _put(publisher: Any, name: str, payload: bytes) -> None:
+def _put(publisher: Any, name: str, payload: bytes, source: Any = None) -> None:
     try:
-        publisher.put(payload)
+        publisher.put(payload, **({} if source is None else {"source_info": source}))
     except Exception as exc:  # noqa: BLE001 - never let publishing take the service down
         log.warning("publishing %s failed: %s", name, exc)
 
@@ -124,8 +124,9 @@ class Publisher:
     def __init__(self, publishers: dict[str, Any], status: Callable[[], dict[str, Any]],
                  telemetry: Callable[[], dict[str, Any]],
                  on_status: Callable[[dict[str, Any]], None] = lambda s: None,
-                 send: Send = send_now) -> None:
+                 send: Send = send_now, source: Callable[[], Any] | None = None) -> None:
         self._pub = publishers
+        self._source = source  # the source info of each put: who speaks (the ground station checks)
         self._send = send
         self._status = status
         self._telemetry = telemetry
@@ -136,7 +137,8 @@ class Publisher:
         self.put_bytes(name, msgs.dumps(obj))
 
     def put_bytes(self, name: str, payload: bytes) -> None:
-        self._send(_put, self._pub[name], name, payload)
+        source = None if self._source is None else self._source()
+        self._send(_put, self._pub[name], name, payload, source)
 
     def publish_status(self) -> None:
         status = self._status()

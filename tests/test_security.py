@@ -193,6 +193,9 @@ def test_a_fleet_lets_each_peer_do_only_its_part(tmp_path):
             out["no certificate"] = str(exc)[:60]
         t0 = time.monotonic()
         await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.3, 30, "the circle")
+        # the ground station took every output from the session that answers as the
+        # vehicle (the service names itself as their source), none from another
+        out["source"] = (gs.vehicle_zid, str(f.gs.session.info.peers_zid()[0]), gs.ignored)
         return out, refused, (t0, time.monotonic())
 
     with flight:
@@ -204,6 +207,7 @@ def test_a_fleet_lets_each_peer_do_only_its_part(tmp_path):
     assert out["planner wildcard"] == [] and out["gs wildcard"] == []
     assert out["visitor status"] == [] and not out["visitor reads status"]
     assert out["no certificate"].startswith("Unable to connect")
+    assert out["source"][0] == out["source"][1] and out["source"][2] == 0, out["source"]
     # what flew stayed in the file's envelope
     figures = flight.figures(window, report.setpoints)
     assert figures.max_speed <= flight.allowed_speed and not figures.outside_fence, \

@@ -80,22 +80,37 @@ def open_session(connect: Sequence[str] = (), config_file: str | None = None,
 
 @dataclass(frozen=True)
 class Vehicle:
-    """A vehicle whose service is alive (its Zenoh liveliness token)."""
+    """A vehicle whose service is alive (its Zenoh liveliness token) and answers
+    (``zid``: the Zenoh id of the session that answered its ``config`` query)."""
 
     prefix: str
     id: str
+    zid: str = ""
 
 
 def list_vehicles(session: zenoh.Session, prefix: str = "*",
                   timeout_s: float = 2.0) -> list[Vehicle]:
-    """The vehicles alive: the services' liveliness tokens ``<prefix>/<id>/alive``."""
-    found = set()
+    """The vehicles alive: the services' liveliness tokens ``<prefix>/<id>/alive``,
+    each confirmed by a service answering ``<prefix>/<id>/config`` (Zenoh does not
+    say who declared a token, so a token alone may be a ghost; Zenoh does say who
+    answered a query)."""
+    tokens = set()
     for reply in session.liveliness().get(f"{prefix}/*/alive", timeout=timeout_s):
         if reply.ok is not None:
             parts = str(reply.ok.key_expr).split("/")
             if len(parts) == 3:
-                found.add(Vehicle(parts[0], parts[1]))
-    return sorted(found, key=lambda v: (v.prefix, v.id))
+                tokens.add((parts[0], parts[1]))
+    asked = [(p, v, session.get(f"{p}/{v}/config", timeout=timeout_s)) for p, v in tokens]
+    found = [Vehicle(p, v, _replier(replies)) for p, v, replies in asked]
+    return sorted((v for v in found if v.zid), key=lambda v: (v.prefix, v.id))
+
+
+def _replier(replies: Any) -> str:
+    """The Zenoh id of the first session that answered (``""``: none did)."""
+    for reply in replies:
+        if reply.ok is not None and reply.replier_id is not None:
+            return str(reply.replier_id.zid)
+    return ""
 
 
 class GroundStation:
@@ -106,6 +121,15 @@ class GroundStation:
     (``setpoints``: (monotonic time, ENU position)). ``on_message(name, obj)`` is
     called from Zenoh's threads for every message received. ``wait_s``: how long
     to keep trying to reach the service at first.
+
+    Only the vehicle speaks for the vehicle: a status, telemetry or re-timed
+    message is taken only if its source (Zenoh's source info, which the service
+    sets on each) is the session that answers the vehicle's ``config`` query
+    (``vehicle_zid``, as Zenoh reports the replier); others are counted in
+    ``ignored``. The source info is declared by the sender, so this stops a
+    process that merely publishes on the vehicle's keys, not one that copies the
+    vehicle's source; the fleet's access control on the vehicle stops both
+    (``docs/security.md``).
     """
 
     def __init__(self, vehicle: str = "drone1", *, connect: Sequence[str] = (),
@@ -125,6 +149,10 @@ class GroundStation:
         self.on_message = on_message
         self._changed = threading.Condition()
         self._sn = 0
+        self.vehicle_zid: str | None = None  # the session that answers as the vehicle
+        self.ignored = 0  # outputs from any other session
+        self._asked, self._ask_every = -1e9, 1.0
+        self.identify()
         self._subs = [self.session.declare_subscriber(self.key(name), self._on(name))
                       for name in ("status", "telemetry", "retimed")]
 
@@ -139,8 +167,45 @@ class GroundStation:
         return "/".join((self.key_prefix, self.vehicle, *parts))
 
     # ------------------------------------------------------------ receiving
+    def identify(self) -> None:
+        """Ask (without waiting) which session answers the vehicle's ``config``
+        query; it becomes :attr:`vehicle_zid` (a restarted service is a new
+        session: asked again when another source speaks, at most once a second, and
+        less often while no one answers)."""
+        now = time.monotonic()
+        if now - self._asked < self._ask_every:
+            return
+        self._asked = now
+        self._ask_every = min(self._ask_every * 2, 30.0)
+        answered = threading.Event()
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            rid = reply.replier_id
+            if reply.ok is not None and rid is not None and not answered.is_set():
+                answered.set()
+                self.vehicle_zid, self._ask_every = str(rid.zid), 1.0
+
+        try:
+            self.session.get(self.key("config"), on_reply, timeout=5.0)
+        except zenoh.ZError:
+            pass
+
+    def _from_vehicle(self, sample: zenoh.Sample) -> bool:
+        source = sample.source_info
+        zid = None if source is None else str(source.source_id.zid)
+        if zid is not None and zid == self.vehicle_zid:
+            return True
+        if zid is not None:
+            self.identify()
+            if self.vehicle_zid is None:
+                return True  # not known yet: any session that names itself
+        self.ignored += 1
+        return False
+
     def _on(self, name: str) -> Callable[[zenoh.Sample], None]:
         def callback(sample: zenoh.Sample) -> None:
+            if not self._from_vehicle(sample):
+                return
             try:
                 obj = json.loads(sample.payload.to_bytes())
             except (UnicodeDecodeError, json.JSONDecodeError):
