@@ -50,7 +50,8 @@ def zenoh_config(cfg: Config) -> zenoh.Config:
     """The Zenoh configuration: a file if given, else the embedded loopback default
     (peer mode, listening on the configured endpoints, no multicast nor gossip
     scouting, so nothing leaves the machine unless configured to). Either way
-    Zenoh drops a message larger than the inputs' byte caps before reassembling it."""
+    Zenoh drops a message larger than the inputs' byte caps before reassembling it,
+    and shares no memory with other processes."""
     if cfg.zenoh.config_file:
         try:
             z = zenoh.Config.from_file(cfg.zenoh.config_file)
@@ -66,6 +67,10 @@ def zenoh_config(cfg: Config) -> zenoh.Config:
     biggest = max(cfg.inputs.max_map_bytes, cfg.inputs.max_trajectory_bytes,
                   cfg.inputs.max_query_bytes)
     z.insert_json5("transport/link/rx/max_message_size", str(biggest + 65536))
+    # No shared memory with local peers: a peer's large message would be mapped into
+    # the service (its 16 MB pool stayed resident after one map, measured), and
+    # another process's segment is not the service's to map; loopback TCP it is
+    z.insert_json5("transport/shared_memory/enabled", "false")
     return z
 
 
