@@ -37,6 +37,11 @@ function needToken(why) {
   $("conn").textContent = `page: ${why}`;
   enableButtons();
 }
+// the address with its token opened in a tab that shows the page already
+window.addEventListener("hashchange", () => {
+  const t = takeToken();
+  if (t && t !== token) { token = t; $("login").hidden = true; stream(); }
+});
 $("token-use").addEventListener("click", () => {
   const t = $("token-input").value.trim();
   if (!t) return;
@@ -191,7 +196,7 @@ function showTelemetry() {
   $("position").textContent = t.position ? `(${t.position.map((x) => fmt(x)).join(", ")}) m ENU${old}` : "-";
   const v = norm(t.velocity);
   $("speed-now").textContent = v === null ? "-" : `${fmt(v)} m/s${old}` + (vMax() ? ` (limit ${vMax()})` : "");
-  $("tracking").textContent = t.tracking_error === null ? "-" : `${fmt(t.tracking_error)} m`;
+  $("tracking").textContent = t.tracking_error == null ? "-" : `${fmt(t.tracking_error)} m${old}`;
 }
 
 // ------------------------------------------------------------------ drawing
