@@ -255,6 +255,7 @@ def _handler(station: WebStation, vehicle: str) -> type[BaseHTTPRequestHandler]:
 
         def do_POST(self) -> None:  # noqa: N802
             path = self.path.split("?", 1)[0]
+            self.close_connection = True  # (a body, never read, cannot become a request)
             if not self._allowed(path):
                 return
             name = path.removeprefix("/api/cmd/")
