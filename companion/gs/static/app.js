@@ -213,6 +213,7 @@ function mapBounds() {
   const add = (p) => { xs.push(p[0]); ys.push(p[1]); };
   if (S.map) S.map.cells.forEach(add);
   Object.values(S.plans).forEach((p) => p.planned.forEach(add));
+  if (S.newest && S.newest.status === "rejected") S.newest.planned.forEach(add);
   S.trail.forEach(add);
   if (!xs.length) return [-5, -5, 5, 5];
   return [Math.min(...xs) - 1, Math.min(...ys) - 1, Math.max(...xs) + 1, Math.max(...ys) + 1];
