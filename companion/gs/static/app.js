@@ -379,7 +379,8 @@ async function stream() {
   while (token) {
     try {
       const r = await fetch("/api/events", { headers: auth(), cache: "no-store" });
-      if (r.status === 401 || r.status === 403) { needToken(`refused (${r.status})`); break; }
+      if (r.status === 401) { needToken("the token was refused"); break; }
+      if (r.status === 403) { $("conn").textContent = "page: refused (403: host or origin)"; break; }
       if (!r.ok) throw new Error(`HTTP ${r.status}`);
       S.connected = true; $("conn").textContent = "page: live";
       const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
