@@ -381,6 +381,7 @@ class Service:
             last_retime=self.replanner.last_result_summary or None,
             retiming=self.replanner.retiming,
             map_voxels=None if self.map is None else len(self.map),
+            limits={"v_max": self.cfg.limits.v_max, "a_max": list(self.cfg.limits.a_max)},
             uncertainty=self.uncertainty.describe(),
             setpoint_jitter_p99_ms=self.stream.jitter_p99_ms(),
             halted=self.stream.halted,

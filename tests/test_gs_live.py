@@ -5,6 +5,10 @@ arming to landing; then the flight record it left, replayed.
 
 The browser is Debian's ``chromium`` with its ``chromedriver``; without them
 (``make test`` installs them where it can) the page's test is skipped, saying so.
+It opens the page at the address ``rota-gs web`` prints (with the session's
+token); mid-flight it stops the service (SIGSTOP) to see the page turn to "no
+contact" and back, changes ``v_max`` to see the page follow, and sends a plan
+through a tree to see it drawn as rejected.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from companion.demo import (
     trajectory_message,
 )
 from companion.gs import GroundStation
+from rota.trajectory import BSplineTrajectory
 from rota.voxelmap import VoxelMap
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import plan
@@ -127,11 +132,11 @@ def _browser(tmp: Path):
 
 
 def test_web_page_and_cli_fly_a_flight(live):
-    from companion.gs.web import WebStation, start, stop
+    from companion.gs.web import WebStation, page_url, start, stop
 
     station = WebStation(GroundStation("sim", connect=[live.endpoint]))
     server = start(station, "sim", "127.0.0.1", free_tcp_port())
-    url = f"http://127.0.0.1:{server.server_address[1]}/"
+    url = page_url(server, "127.0.0.1")  # what `rota-gs web` prints: the token after '#'
     driver = None
     try:
         driver = _browser(live.tmp)
@@ -149,11 +154,14 @@ def test_web_page_and_cli_fly_a_flight(live):
 
         driver.get(url)
         until(lambda: text("state") == "ready", 20, "the page to show the state")
+        assert "token" not in driver.current_url  # out of the address bar once read
+        assert text("contact").startswith("heard") and "limit 2" in text("speed-now")
         home = live.sim.home_enu
         live.gs.send_map(map_message(live.world, home))
         js_cells = "return (rotaGs.map && rotaGs.map.cells.length) || 0"
         until(lambda: driver.execute_script(js_cells) > 100, 20,
               f"the map on the page {list(station.hub.items)} {text('log')}")
+        _rejected_plan_is_drawn_as_rejected(live, home, text, until, driver)
         # arm needs a confirmation: cancel first (nothing happens), then confirm
         click("btn-arm")
         assert driver.find_element(By.ID, "confirm").is_displayed()
@@ -217,6 +225,8 @@ def test_web_page_and_cli_fly_a_flight(live):
         assert "Abort?" in text("confirm-text")
         click("confirm-yes")
         until(lambda: text("state") == "airborne", 15, "PX4 Hold after abort")
+        _limits_shown_are_those_in_force(live, text, until, driver)
+        _no_contact_when_the_service_stops(live, text, until, driver)
         r = live.rota_gs("cmd", "land")
         assert r.returncode == 0 and "(state ready)" in r.stdout, r
     finally:
@@ -224,6 +234,80 @@ def test_web_page_and_cli_fly_a_flight(live):
             driver.quit()
         stop(server)
         station.close()
+
+
+def _rejected_plan_is_drawn_as_rejected(live, home, text, until, driver) -> None:  # noqa: ANN001
+    """A plan straight through a tree: rejected, and the page draws it apart (no
+    speeds, no braking zones), with the reason."""
+    from selenium.webdriver.common.by import By
+
+    trunk = live.world.voxel_points(0.1) - home
+    p = trunk[np.argmin(np.abs(trunk[:, 2] - 1.5))]  # a voxel of a tree 1.5 m up
+    ctrl = p + np.linspace(-2.5, 2.5, 8)[:, None] * [1.0, 0.0, 0.0]
+    path = live.tmp / "through-a-tree.json"
+    path.write_text(json.dumps(trajectory_message(
+        BSplineTrajectory(control_points=ctrl, degree=3, knot_span=0.8), "through-a-tree")))
+    r = live.rota_gs("send", str(path))
+    assert r.returncode == 1 and r.stdout.startswith("through-a-tree: rejected"), r
+    until(lambda: driver.execute_script("return rotaGs.drawn.rejected") == "through-a-tree",
+          10, "the rejected plan on the map")
+    drawn = driver.execute_script("return rotaGs.drawn")
+    assert drawn["plan"] is None and drawn["zones"] == 0, drawn  # not in the flown style
+    assert driver.execute_script("return rotaGs.plans['through-a-tree'] === undefined")
+    reason = live.gs.retimed[-1]["message"]
+    assert reason and text("rejected") == f"through-a-tree: {reason}"
+    assert f"REJECTED through-a-tree: {reason}" in driver.find_element(By.ID, "log").text
+
+
+def _limits_shown_are_those_in_force(live, text, until, driver) -> None:  # noqa: ANN001
+    """After a run-time change of v_max the page (table, chart line) and the
+    terminal views show the new limit."""
+    r = live.rota_gs("config", "set", "limits.v_max=1.2")
+    assert r.returncode == 0, r
+    until(lambda: "v_max 1.2 m/s" in text("limits"), 5, "the new limit on the page")
+    until(lambda: driver.execute_script("return rotaGs.drawn.vMaxLine") == 1.2, 5,
+          "the chart's v_max line at the new limit")
+    assert "(limit 1.2)" in text("speed-now")
+    r = live.rota_gs("status")
+    assert r.returncode == 0 and "limit 1.2" in r.stdout and "limit 2" not in r.stdout, r
+    assert live.rota_gs("config", "set", "limits.v_max=2").returncode == 0
+    until(lambda: "v_max 2 m/s" in text("limits"), 5, "the limit back on the page")
+
+
+def _no_contact_when_the_service_stops(live, text, until, driver) -> None:  # noqa: ANN001
+    """The service stopped in the air (SIGSTOP: silent, as a crashed or hung one;
+    PX4 holds on its own after the abort): within 2 s the page says NO CONTACT,
+    greys the state, mode and speed and disables the commands that need a live
+    service; when the service runs again the page recovers."""
+    from selenium.webdriver.common.by import By
+
+    def cls(el_id: str) -> str:
+        return driver.find_element(By.ID, el_id).get_attribute("class")
+
+    def enabled(el_id: str) -> bool:
+        return driver.find_element(By.ID, el_id).is_enabled()
+
+    assert text("contact").startswith("heard") and enabled("btn-arm")
+    live.service.send_signal(signal.SIGSTOP)
+    try:
+        until(lambda: text("contact").startswith("NO CONTACT"), 10, "NO CONTACT on the page")
+        # the silence the page had measured when it turned: over its 1.5 s threshold,
+        # under 2 s (it checks every 0.1 s)
+        silence = driver.execute_script("return rotaGs.silenceAtFlip")
+        assert 1.5 < silence < 2.0, silence
+        assert "stale" in cls("state") and "stale" in cls("link") and "bad" in cls("contact")
+        assert "stale" in driver.find_element(By.TAG_NAME, "body").get_attribute("class")
+        assert driver.find_element(By.ID, "stale-banner").is_displayed()
+        assert text("state") == "airborne"  # as it was last heard, greyed
+        until(lambda: "s old)" in text("speed-now"), 5, "the speed marked old")
+        assert not any(enabled(b) for b in ("btn-arm", "btn-takeoff", "btn-start", "btn-disarm"))
+        assert all(enabled(b) for b in ("btn-hold", "btn-land", "btn-abort"))
+    finally:
+        live.service.send_signal(signal.SIGCONT)
+    until(lambda: text("contact").startswith("heard"), 20, "contact again on the page")
+    assert "stale" not in cls("state") and enabled("btn-arm")
+    assert not driver.find_element(By.ID, "stale-banner").is_displayed()
+    assert "contact again" in text("log")
 
 
 async def _hover(gs: GroundStation) -> None:

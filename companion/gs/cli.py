@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -22,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from companion.gs.client import COMMANDS, GroundStation, GroundStationError, list_vehicles
-from companion.gs.view import render_status
+from companion.gs.view import NO_CONTACT_S, contact_age, render_status
 from rota.errors import InputError
 
 if TYPE_CHECKING:  # imported where used: the CLI starts faster without them
@@ -76,13 +77,43 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_status(args: argparse.Namespace) -> int:
     with _station(args) as gs:
+        heard = _Heard(gs)
         status = _first_status(gs, args.timeout)
+        _await(lambda: gs.telemetry or None, 0.5)  # (sent 5 times as often as status)
         if args.json:
             _print_json(status)
         else:
-            print(render_status(status, gs.telemetry, gs.retimed, width=args.width,
-                                v_max=_v_max(gs)))
+            v_max = None if "limits" in status else _v_max(gs)
+            print(render_status(status, gs.telemetry, gs.retimed, width=_width(args),
+                                v_max=v_max, ages=heard.ages()))
     return EXIT_OK
+
+
+def _width(args: argparse.Namespace) -> int:
+    """``--width``, else the terminal's width on a terminal, else 0 (whole lines)."""
+    if args.width is not None:
+        return max(args.width, 0)
+    return shutil.get_terminal_size().columns if sys.stdout.isatty() else 0
+
+
+class _Heard:
+    """When the station last heard the service's status and telemetry (monotonic
+    time), through its ``on_message`` hook."""
+
+    def __init__(self, gs: GroundStation) -> None:
+        self.at: dict[str, float] = {}
+        gs.on_message = self._note
+        for name in ("status", "telemetry"):  # (arrived while the station opened)
+            if getattr(gs, name):
+                self.at.setdefault(name, time.monotonic())
+
+    def _note(self, name: str, obj: dict[str, Any]) -> None:  # noqa: ARG002
+        self.at[name] = time.monotonic()
+
+    def ages(self) -> dict[str, float | None]:
+        now = time.monotonic()
+        return {k: (now - self.at[k] if k in self.at else None)
+                for k in ("status", "telemetry")}
 
 
 def _first_status(gs: GroundStation, timeout_s: float) -> dict[str, Any]:
@@ -93,26 +124,38 @@ def _first_status(gs: GroundStation, timeout_s: float) -> dict[str, Any]:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    """A live view, redrawn at 5 Hz (a tty) or printed once a second (a pipe)."""
+    """A live view, redrawn at 5 Hz (a tty) or printed once a second (a pipe) and at
+    once when contact is lost or found; it says how long ago the service was heard,
+    and "NO CONTACT" after :data:`~companion.gs.view.NO_CONTACT_S` of silence."""
     tty = sys.stdout.isatty()
     end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
     events: list[str] = []
     with _station(args) as gs:
+        heard = _Heard(gs)
         _first_status(gs, args.timeout)
-        v_max = _v_max(gs)
+        v_max = None if "limits" in gs.status else _v_max(gs)  # (a service without them)
         last: dict[str, Any] = {}
+        silent, printed = False, 0.0
         try:
             while time.monotonic() < end:
                 _collect_events(last, gs.status, events)
                 last = gs.status
-                screen = render_status(gs.status, gs.telemetry, gs.retimed, events[-8:],
-                                       width=args.width, v_max=v_max)
-                if tty:
-                    sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
-                else:
-                    sys.stdout.write(screen + "\n\n")
-                sys.stdout.flush()
-                time.sleep(0.2 if tty else 1.0)
+                ages = heard.ages()
+                age = contact_age(ages)
+                changed = (age is None or age > NO_CONTACT_S) != silent
+                if changed:
+                    silent = not silent
+                    events.append(f"{time.strftime('%H:%M:%S')} "
+                                  + ("NO CONTACT" if silent else "contact again"))
+                if tty or changed or time.monotonic() - printed >= 1.0:
+                    printed = time.monotonic()
+                    screen = render_status(gs.status, gs.telemetry, gs.retimed, events[-8:],
+                                           width=_width(args), v_max=v_max, ages=ages,
+                                           ansi=tty)
+                    sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n" if tty
+                                     else screen + "\n\n")
+                    sys.stdout.flush()
+                time.sleep(0.2)
         except KeyboardInterrupt:
             pass
     return EXIT_OK
@@ -391,7 +434,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_web(args: argparse.Namespace) -> int:
     from companion.gs.web import serve
 
-    serve(lambda vehicle: _station(args, vehicle), args.vehicle, args.host, args.port)
+    serve(lambda vehicle: _station(args, vehicle), args.vehicle, args.host, args.port,
+          tls_cert=args.tls_cert, tls_key=args.tls_key,
+          token_file=Path(args.token_file) if args.token_file else None,
+          names=tuple(args.name or ()))
     return EXIT_OK
 
 
@@ -425,12 +471,14 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p = add("status", cmd_status, "the vehicle's status, once")
     p.add_argument("--json", action="store_true", help="print the rota/status message")
-    p.add_argument("--width", type=int, default=78, help="text width (default 78)")
+    p.add_argument("--width", type=int, default=None, help="wrap lines at this width "
+                   "(default: the terminal's width; whole lines in a pipe)")
     p = add("watch", cmd_watch, "a live view: state, position, speed, plan, braking zones, "
             "errors and events (Ctrl-C ends)")
     p.add_argument("--duration", type=float, default=0.0,
                    help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--width", type=int, default=78, help="text width (default 78)")
+    p.add_argument("--width", type=int, default=None, help="wrap lines at this width "
+                   "(default: the terminal's width; whole lines in a pipe)")
     p = add("cmd", cmd_cmd, "send a command and wait for the state to confirm it")
     p.add_argument("name", choices=COMMANDS)
     p.add_argument("--no-wait", action="store_true", help="return on the reply, do not wait "
@@ -488,10 +536,20 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="OUT", help="draw the flight (PNG, SVG or PDF)")
     p.add_argument("--title", help="plot title (default: the file name)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
-    p = add("web", cmd_web, "serve the ground-station web page on this machine")
+    p = add("web", cmd_web, "serve the ground-station web page on this machine (a token "
+            "per session; beyond loopback only over TLS)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default "
-                   "127.0.0.1: this machine only)")
+                   "127.0.0.1: this machine only; any other needs --tls-cert and --tls-key)")
     p.add_argument("--port", type=int, default=8470, help="port (default 8470)")
+    p.add_argument("--tls-cert", metavar="PEM", help="serve HTTPS with this certificate "
+                   "(chain)")
+    p.add_argument("--tls-key", metavar="PEM", help="the certificate's private key")
+    p.add_argument("--token-file", metavar="FILE", help="write this session's token here, "
+                   "mode 0600 (default $XDG_RUNTIME_DIR/rota-gs/web-PORT.token, else "
+                   "~/.local/state/rota-gs/web-PORT.token)")
+    p.add_argument("--name", action="append", metavar="HOST",
+                   help="another host name the page answers to (how others reach it: "
+                   "a DNS name, an address; repeatable)")
     return parser
 
 

@@ -2,27 +2,47 @@
 
 A small HTTP server (the standard library's) on this machine: the page and its
 assets come from the package (``companion/gs/static``; nothing is fetched from
-the internet), live data reach the page as server-sent events, and commands go
-back as POST requests, which must carry the ``X-Rota-GS`` header and come to the
-host name the page was served from, so another web site open in the same
-browser cannot command the vehicle.
+the internet), live data reach the page as a stream of server-sent events, and
+commands go back as POST requests. Who may use it (a token per session, checks of
+``Host`` and ``Origin`` on every request, TLS beyond loopback):
+:mod:`companion.gs.webauth`.
+
+The page shows how old the newest status and telemetry are: the event stream
+carries the ages as the ground station sees them (``ages``) with every batch and
+twice a second, and the page counts on from there, so a silent service, a dead
+ground station and a broken page connection all show as "no contact".
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import socket
+import ssl
 import threading
 import time
 from collections.abc import Callable
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from companion.gs.client import COMMANDS, GroundStation, GroundStationError
+from companion.gs.webauth import (
+    OWN_SITES,
+    Access,
+    access_for,
+    check_bind,
+    default_token_file,
+    is_wildcard,
+    new_token,
+    tls_context,
+    write_token,
+)
+from rota.errors import InputError
 
 log = logging.getLogger("rota.gs")
 
@@ -31,14 +51,24 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/style.css": ("style.css", "text/css; charset=utf-8")}
 #: Telemetry is forwarded to the page at most this often (Hz).
 PAGE_RATE_HZ = 10.0
+#: The page hears the ages of status and telemetry at least this often (s).
+AGES_EVERY_S = 0.5
 
 
 def plan_view(result: dict[str, Any], samples: int = 300) -> dict[str, Any]:
     """What the page draws of a re-timed result: the planner's path, the re-timed
-    path with its speed, the braking zones, the chance-constrained speed limits."""
+    path with its speed, the braking zones, the chance-constrained speed limits.
+    A rejected result (its path passes through an obstacle; it is never flown) is
+    the planner's path and the reason only: no speeds, zones or limits to draw."""
     from rota.schema import result_from_dict
 
     res, _ = result_from_dict(result)
+    if result.get("status") == "rejected":
+        tau_in = np.linspace(*res.trajectory.domain, samples)
+        planned = np.round(res.trajectory.position(tau_in)[:, :2], 3).tolist()
+        return {"id": result.get("id"), "status": "rejected", "message": result.get("message"),
+                "duration": None, "planned": planned, "path": [], "speed": [], "t": [],
+                "zones": [], "zone_times": [], "limit_t": [], "limits": []}
     t = np.linspace(0.0, res.duration, samples)
     s = res.sample(t)
     tau_in = np.linspace(*res.trajectory.domain, samples)
@@ -49,7 +79,8 @@ def plan_view(result: dict[str, Any], samples: int = 300) -> dict[str, Any]:
         zones.append(np.round(res.trajectory.position(tau)[:, :2], 3).tolist())
     tau_n, t_n = np.asarray(result["tau"]), np.asarray(result["t"])
     return {
-        "id": result.get("id"), "status": result.get("status"), "duration": res.duration,
+        "id": result.get("id"), "status": result.get("status"),
+        "message": result.get("message"), "duration": res.duration,
         "planned": np.round(planned[:, :2], 3).tolist(),
         "path": np.round(s.position[:, :2], 3).tolist(),
         "speed": np.round(np.linalg.norm(s.velocity, axis=1), 3).tolist(),
@@ -99,30 +130,32 @@ class Hub:
 
 
 class WebStation:
-    """A ground station feeding a :class:`Hub` for the page."""
+    """A ground station feeding a :class:`Hub` for the page, and keeping when its
+    newest status and telemetry arrived (monotonic time)."""
 
     def __init__(self, gs: GroundStation) -> None:
         self.gs = gs
         self.hub = Hub()
         self._last_tel = 0.0
+        self.received: dict[str, float] = {}
         gs.on_message = self._on_message
         self._map_sub = gs.session.declare_subscriber(gs.key("map"), self._on_map)
-        self.refresh_config()
 
-    def refresh_config(self) -> None:
-        try:
-            self.hub.set("config", self.gs.config()["config"])
-        except (GroundStationError, KeyError):
-            pass
+    def ages(self) -> dict[str, float | None]:
+        """Seconds since the newest status and telemetry (None: none yet)."""
+        now = time.monotonic()
+        return {k: (round(now - self.received[k], 3) if k in self.received else None)
+                for k in ("status", "telemetry")}
 
     def _on_message(self, name: str, obj: dict[str, Any]) -> None:
         if name == "telemetry":
-            now = time.monotonic()
+            now = self.received["telemetry"] = time.monotonic()
             if now - self._last_tel < 1.0 / PAGE_RATE_HZ:
                 return
             self._last_tel = now
             self.hub.set("telemetry", obj)
         elif name == "status":
+            self.received["status"] = time.monotonic()
             self.hub.set("status", obj)
         elif name == "retimed":
             try:
@@ -152,25 +185,64 @@ def _handler(station: WebStation, vehicle: str) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         server_version = "rota-gs"
         protocol_version = "HTTP/1.1"
+        server: WebServer
 
         def log_message(self, fmt: str, *args: Any) -> None:
             log.debug("%s " + fmt, self.address_string(), *args)
 
-        def _send(self, code: int, body: bytes, ctype: str) -> None:
+        def _headers(self, code: int, ctype: str, length: int | None = None) -> None:
             self.send_response(code)
             self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(body)))
+            if length is not None:
+                self.send_header("Content-Length", str(length))
             self.send_header("Cache-Control", "no-store")
             self.send_header("Content-Security-Policy",
-                             "default-src 'self'; connect-src 'self'; img-src 'self' data:")
+                             "default-src 'self'; connect-src 'self'; img-src 'self' data:; "
+                             "frame-ancestors 'none'; form-action 'none'; base-uri 'none'")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.send_header("Referrer-Policy", "no-referrer")
+            self.send_header("Cross-Origin-Resource-Policy", "same-origin")
+            self.send_header("X-Frame-Options", "DENY")
+            if code == HTTPStatus.UNAUTHORIZED:
+                self.send_header("WWW-Authenticate", 'Bearer realm="rota-gs"')
             self.end_headers()
+
+        def _send(self, code: int, body: bytes, ctype: str) -> None:
+            self._headers(code, ctype, len(body))
             self.wfile.write(body)
 
         def _json(self, obj: Any, code: int = 200) -> None:
             self._send(code, json.dumps(obj).encode(), "application/json")
 
+        def _allowed(self, path: str) -> bool:
+            """Host, Origin and Sec-Fetch-Site for every request; the token for
+            ``/api/``. Answers a refusal itself (nothing of the vehicle in it)."""
+            access = self.server.access
+            host = self.headers.get("Host") or ""
+            why = None
+            if not access.host_ok(host):
+                why = "forbidden: unknown Host"
+            elif not access.origin_ok(self.headers.get("Origin"), host):
+                why = "forbidden: foreign Origin"
+            elif (self.headers.get("Sec-Fetch-Site") or "none") not in OWN_SITES and not (
+                    path == "/" and self.headers.get("Sec-Fetch-Mode") == "navigate"):
+                why = "forbidden: request from another site"
+            if why is not None:
+                self._json({"ok": False, "message": why}, HTTPStatus.FORBIDDEN)
+            elif path.startswith("/api/") and not access.token_ok(
+                    self.headers.get("Authorization")):
+                why = "unauthorised: this page's token is needed (rota-gs web printed it)"
+                self._json({"ok": False, "message": why}, HTTPStatus.UNAUTHORIZED)
+            if why is not None:
+                log.warning("web: refused %s %s from %s: %s", self.command, path[:80],
+                            self.address_string(), why)
+                self.close_connection = True
+            return why is None
+
         def do_GET(self) -> None:  # noqa: N802
             path = self.path.split("?", 1)[0]
+            if not self._allowed(path):
+                return
             if path in STATIC:
                 name, ctype = STATIC[path]
                 self._send(200, (static / name).read_bytes(), ctype)
@@ -183,38 +255,35 @@ def _handler(station: WebStation, vehicle: str) -> type[BaseHTTPRequestHandler]:
 
         def do_POST(self) -> None:  # noqa: N802
             path = self.path.split("?", 1)[0]
-            host = (self.headers.get("Host") or "").rsplit(":", 1)[0]
-            if self.headers.get("X-Rota-GS") != "1" or host not in self.server.allowed_hosts:
-                self._json({"ok": False, "message": "forbidden"}, HTTPStatus.FORBIDDEN)
+            self.close_connection = True  # (a body, never read, cannot become a request)
+            if not self._allowed(path):
                 return
             name = path.removeprefix("/api/cmd/")
             if not path.startswith("/api/cmd/") or name not in COMMANDS:
-                self._json({"ok": False, "message": f"unknown command {name!r}"}, 404)
+                self._json({"ok": False, "message": f"unknown command {name[:40]!r}"}, 404)
                 return
+            log.info("web: command %s from %s", name, self.address_string())
             try:
                 self._json(station.command(name))
             except GroundStationError as exc:
                 self._json({"ok": False, "command": name, "message": str(exc)}, 504)
 
         def _events(self) -> None:
-            self.send_response(200)
-            self.send_header("Content-Type", "text/event-stream")
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            version, keepalive = 0, time.monotonic()
+            self._headers(200, "text/event-stream")
+            version, sent = 0, 0.0
             try:
                 while not self.server.closing:
                     version, items = station.hub.since(version)
+                    if items or time.monotonic() - sent >= AGES_EVERY_S:
+                        sent = time.monotonic()
+                        self.wfile.write(b"event: ages\ndata: "
+                                         + json.dumps(station.ages()).encode() + b"\n\n")
                     for name, value in items.items():
                         data = json.dumps(value, allow_nan=False)
                         self.wfile.write(f"event: {name}\ndata: {data}\n\n".encode())
-                    if items or time.monotonic() - keepalive > 10:
-                        if not items:
-                            self.wfile.write(b": keepalive\n\n")
-                        self.wfile.flush()
-                        keepalive = time.monotonic()
-                    station.hub.wait(version, 0.5)
-            except (BrokenPipeError, ConnectionResetError):
+                    self.wfile.flush()
+                    station.hub.wait(version, AGES_EVERY_S)
+            except (BrokenPipeError, ConnectionResetError, OSError):
                 pass
             self.close_connection = True
 
@@ -224,14 +293,25 @@ def _handler(station: WebStation, vehicle: str) -> type[BaseHTTPRequestHandler]:
 class WebServer(ThreadingHTTPServer):
     daemon_threads = True
     closing = False
-    allowed_hosts: set[str] = set()
+    access: Access
 
 
-def start(station: WebStation, vehicle: str, host: str = "127.0.0.1",
-          port: int = 8470) -> WebServer:
-    """Serve the page in a background thread; ``server.shutdown()`` stops it."""
-    server = WebServer((host, port), _handler(station, vehicle))
-    server.allowed_hosts = {host, "localhost", "127.0.0.1", "[::1]"}
+def start(station: WebStation, vehicle: str, host: str = "127.0.0.1", port: int = 8470, *,
+          token: str | None = None, tls: ssl.SSLContext | None = None,
+          names: tuple[str, ...] = ()) -> WebServer:
+    """Serve the page in a background thread; ``server.shutdown()`` stops it.
+    ``token``: this session's (default: a new one, ``server.access.token``);
+    ``tls``: serve HTTPS; ``names``: more host names the page answers to. The bind
+    is not checked here (:func:`serve` does: loopback, or TLS)."""
+    cls = WebServer
+    if ":" in host.strip("[]"):
+        cls = type("WebServer6", (WebServer,), {"address_family": socket.AF_INET6})
+    server = cls((host.strip("[]"), port), _handler(station, vehicle))
+    if tls is not None:
+        server.socket = tls.wrap_socket(server.socket, server_side=True,
+                                        do_handshake_on_connect=False)
+    server.access = access_for(host, server.server_address[1], token or new_token(),
+                               tls is not None, names)
     threading.Thread(target=server.serve_forever, name="rota-gs-web", daemon=True).start()
     return server
 
@@ -242,17 +322,43 @@ def stop(server: WebServer) -> None:
     server.server_close()
 
 
-def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
-          port: int) -> None:
-    """Serve until Ctrl-C (``rota-gs web``)."""
+def page_url(server: WebServer, host: str) -> str:
+    """The address to open: the page with this session's token after ``#`` (a
+    fragment: the browser keeps it, it is never sent to a server)."""
+    a = server.access
+    name = host if not is_wildcard(host) else socket.getfqdn()
+    name = f"[{name.strip('[]')}]" if ":" in name.strip("[]") else name
+    return f"{a.scheme}://{name}:{a.port}/#token={a.token}"
+
+
+def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str, port: int,
+          *, tls_cert: str | None = None, tls_key: str | None = None,
+          token_file: Path | None = None, names: tuple[str, ...] = ()) -> None:
+    """Serve until Ctrl-C (``rota-gs web``): refuse a bind beyond loopback without
+    TLS, make this session's token, print the page's address with it and write it
+    to ``token_file`` (0600), removed at the end."""
+    if (tls_cert is None) != (tls_key is None):
+        raise InputError("--tls-cert/--tls-key", "give both, or neither")
+    check_bind(host, tls_cert is not None)
+    tls = tls_context(tls_cert, tls_key) if tls_cert and tls_key else None
     station = WebStation(make_station(vehicle))
     try:
-        server = start(station, vehicle, host, port)
+        server = start(station, vehicle, host, port, tls=tls, names=names)
     except OSError as exc:
         station.close()
         raise OSError(f"cannot serve on {host}:{port}: {exc.strerror}") from None
-    print(f"rota-gs: ground station for vehicle {vehicle!r} on http://{host}:{port}/ "
-          "(Ctrl-C stops)", flush=True)
+    path = token_file or default_token_file(server.access.port)
+    try:
+        write_token(path, server.access.token)
+    except OSError as exc:
+        stop(server)
+        station.close()
+        raise OSError(f"cannot write the token file {path}: {exc.strerror}") from None
+    where = "over HTTPS (TLS)" if tls else "on this machine's loopback only"
+    print(f"rota-gs: ground station for vehicle {vehicle!r}, served {where}; every request "
+          f"needs this session's token, in the address below and in {path} (readable by "
+          f"you only); answers to host names {', '.join(sorted(server.access.hosts))}. "
+          f"Ctrl-C stops. Open:\n{page_url(server, host)}", flush=True)
     try:
         while True:
             time.sleep(3600)
@@ -261,3 +367,4 @@ def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
     finally:
         stop(server)
         station.close()
+        path.unlink(missing_ok=True)

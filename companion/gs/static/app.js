@@ -1,14 +1,56 @@
-// rota ground station page: live data from /api/events (server-sent events),
-// commands to /api/cmd/<name>. No external code; drawn on two canvases.
+// rota ground station page: live data from /api/events (server-sent events, read
+// with fetch so that every request carries this session's token), commands to
+// /api/cmd/<name>. No external code; drawn on two canvases.
 "use strict";
 
-const S = { status: null, telemetry: null, config: null, map: null, plans: {}, latestPlan: null,
-            events: [], trail: [], hist: [], planStart: null, connected: false };
+// Silence after which the page shows "no contact", s: as NO_CONTACT_S in
+// companion/gs/view.py (the service sends telemetry at 10 Hz, status at 2 Hz).
+const NO_CONTACT_S = 1.5;
+const TOKEN_KEY = "rota-gs-token";
+const S = { status: null, telemetry: null, map: null, plans: {}, latestPlan: null, rejected: null,
+            newest: null, events: [], trail: [], hist: [], planStart: null, connected: false,
+            ages: null, contact: false, heardOnce: false, silenceAtFlip: null, drawn: {} };
 window.rotaGs = S;  // for people and tests to inspect
 const $ = (id) => document.getElementById(id);
 const fmt = (x, d = 2) => (x === null || x === undefined ? "-" : Number(x).toFixed(d));
 const norm = (v) => (v ? Math.hypot(v[0], v[1], v[2]) : null);
 const now = () => performance.now() / 1000;
+
+// ------------------------------------------------------------------ the token
+// Given in the address after "#" (never sent to a server), then kept in this
+// tab's session storage, which only this page's origin can read.
+function takeToken() {
+  const m = location.hash.match(/token=([A-Za-z0-9_-]+)/);
+  if (m) {
+    sessionStorage.setItem(TOKEN_KEY, m[1]);
+    history.replaceState(null, "", location.pathname);  // out of the address bar
+  }
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+let token = takeToken();
+const auth = () => ({ Authorization: `Bearer ${token}` });
+
+function needToken(why) {
+  token = null;
+  sessionStorage.removeItem(TOKEN_KEY);
+  $("login").hidden = false;
+  $("conn").textContent = `page: ${why}`;
+  enableButtons();
+}
+// the address with its token opened in a tab that shows the page already
+window.addEventListener("hashchange", () => {
+  const t = takeToken();
+  if (t && t !== token) { token = t; $("login").hidden = true; stream(); }
+});
+$("token-use").addEventListener("click", () => {
+  const t = $("token-input").value.trim();
+  if (!t) return;
+  token = t;
+  sessionStorage.setItem(TOKEN_KEY, t);
+  $("token-input").value = "";
+  $("login").hidden = true;
+  stream();
+});
 
 function logEvent(text, kind = "") {
   const t = new Date().toLocaleTimeString();
@@ -52,6 +94,12 @@ function onTelemetry(t) {
 }
 
 function onPlan(p) {
+  S.newest = p;
+  if (p.status === "rejected") {  // never flown: drawn apart, without speeds or zones
+    S.rejected = p;
+    logEvent(`REJECTED ${p.id}: ${p.message || "no reason given"}`, "error");
+    return;
+  }
   S.plans[p.id] = p;
   S.latestPlan = p;
   logEvent(`re-timed ${p.id}: ${p.status}, ${fmt(p.duration)} s, ${p.zones.length} braking zone(s)`,
@@ -63,7 +111,50 @@ function currentPlan() {
   return (id && S.plans[id]) || S.latestPlan;
 }
 
-function vMax() { return S.config ? S.config.limits.v_max : null; }
+// The limits in force: the service's status carries them after every change.
+function limits() { return S.status && S.status.limits ? S.status.limits : null; }
+function vMax() { const l = limits(); return l ? l.v_max : null; }
+
+// ------------------------------------------------------------------ contact
+function age(name) {
+  const a = S.ages && S.ages[name];
+  return a === null || a === undefined ? null : a + (now() - S.ages.at);
+}
+function contactAge() {
+  const a = [age("status"), age("telemetry")].filter((x) => x !== null);
+  return a.length ? Math.min(...a) : null;
+}
+const ago = (a) => (a === null ? "never" : `${fmt(a, 1)} s ago`);
+
+function showContact() {
+  const a = contactAge(), live = a !== null && a <= NO_CONTACT_S;
+  if (live !== S.contact) {
+    S.contact = live;
+    if (live) {
+      if (S.heardOnce) logEvent("contact again");
+      S.heardOnce = true;
+      S.silenceAtFlip = null;
+    } else if (S.heardOnce) {
+      S.silenceAtFlip = a;  // how long the service had been silent when the page turned
+      logEvent(`NO CONTACT: nothing from the service for ${fmt(a, 1)} s`, "error");
+    }
+  }
+  document.body.classList.toggle("stale", !live);
+  const heard = `status ${ago(age("status"))}, telemetry ${ago(age("telemetry"))}`;
+  $("ages").textContent = heard;
+  badge($("contact"), live ? `heard ${fmt(a, 1)} s ago` : a === null ? "no contact yet"
+        : `NO CONTACT ${fmt(a, 0)} s`, live ? "ok" : "bad");
+  $("stale-banner").hidden = live || a === null;
+  $("stale-text").textContent = `nothing heard for ${fmt(a, 1)} s (${heard})`;
+  enableButtons();
+}
+
+// Commands that need the vehicle's state known (data-live) wait for contact;
+// hold, land and abort can always be tried.
+function enableButtons() {
+  for (const b of document.querySelectorAll("button[data-cmd]"))
+    b.disabled = !token || (b.dataset.live === "1" && !S.contact);
+}
 
 // ------------------------------------------------------------------ panels
 function badge(el, text, cls) { el.textContent = text; el.className = "badge " + cls; }
@@ -73,14 +164,18 @@ function showStatus() {
   $("vehicle").textContent = s.vehicle;
   const cls = { offboard: "ok", airborne: "ok", armed: "warn", prestream: "warn", landing: "warn",
                 link_lost: "bad", not_ready: "bad" }[s.state] || "";
-  badge($("state"), s.state, cls);
-  badge($("link"), s.link ? "link ok" : "link LOST", s.link ? "ok" : "bad");
+  badge($("state"), s.state, S.contact ? cls : "stale");
+  badge($("link"), s.link ? "link ok" : "link LOST", S.contact ? (s.link ? "ok" : "bad") : "stale");
   $("mode").textContent = `${s.flight_mode || "-"} (${s.landed_state || "-"})`;
   $("command").textContent = s.command ? `${s.command}${s.hold_reason ? ": " + s.hold_reason : ""}` : "not streaming";
   $("plan-id").textContent = s.trajectory_id
     ? `${s.trajectory_id}: ${Math.round(100 * (s.progress || 0))} %, ${fmt(s.remaining_s, 1)} s to go` : "-";
   const r = s.last_retime;
-  $("retime").textContent = r ? `${r.id}: ${r.status}, ${r.input_duration} s → ${r.duration} s, solve ${Math.round(1000 * r.solve_time)} ms` : "-";
+  $("retime").textContent = r ? `${r.id}: ${r.status}, ${r.input_duration} s → ${r.duration} s, solve ${Math.round(1000 * r.solve_time)} ms`
+    + (r.status === "rejected" && r.message ? ` (${r.message})` : "") : "-";
+  const l = limits();
+  $("limits").textContent = l ? `v_max ${l.v_max} m/s, a_max [${l.a_max.join(", ")}] m/s²` : "-";
+  $("rejected").textContent = S.rejected ? `${S.rejected.id}: ${S.rejected.message || "-"}` : "-";
   $("map-voxels").textContent = s.map_voxels ? `${s.map_voxels} occupied voxels` : "none";
   $("error").textContent = s.last_error ? `${s.last_error.source}: ${s.last_error.message}` : "-";
   const plan = currentPlan();
@@ -96,11 +191,12 @@ function showStatus() {
 }
 
 function showTelemetry() {
-  const t = S.telemetry;
-  $("position").textContent = t.position ? `(${t.position.map((x) => fmt(x)).join(", ")}) m ENU` : "-";
+  const t = S.telemetry, a = age("telemetry");
+  const old = a !== null && a > NO_CONTACT_S ? ` (${fmt(a, 1)} s old)` : "";
+  $("position").textContent = t.position ? `(${t.position.map((x) => fmt(x)).join(", ")}) m ENU${old}` : "-";
   const v = norm(t.velocity);
-  $("speed-now").textContent = v === null ? "-" : `${fmt(v)} m/s` + (vMax() ? ` (limit ${vMax()})` : "");
-  $("tracking").textContent = t.tracking_error === null ? "-" : `${fmt(t.tracking_error)} m`;
+  $("speed-now").textContent = v === null ? "-" : `${fmt(v)} m/s${old}` + (vMax() ? ` (limit ${vMax()})` : "");
+  $("tracking").textContent = t.tracking_error == null ? "-" : `${fmt(t.tracking_error)} m${old}`;
 }
 
 // ------------------------------------------------------------------ drawing
@@ -117,6 +213,7 @@ function mapBounds() {
   const add = (p) => { xs.push(p[0]); ys.push(p[1]); };
   if (S.map) S.map.cells.forEach(add);
   Object.values(S.plans).forEach((p) => p.planned.forEach(add));
+  if (S.newest && S.newest.status === "rejected") S.newest.planned.forEach(add);
   S.trail.forEach(add);
   if (!xs.length) return [-5, -5, 5, 5];
   return [Math.min(...xs) - 1, Math.min(...ys) - 1, Math.max(...xs) + 1, Math.max(...ys) + 1];
@@ -149,7 +246,21 @@ function drawMap() {
     for (let i = 1; i < plan.path.length; i++)
       line([plan.path[i - 1], plan.path[i]], speedColour(plan.speed[i], vMax()), 3.5);
   }
-  line(S.trail, "#111", 1.2);
+  // the newest result rejected: its path in red dashes, no speeds, no zones, the reason
+  const rej = S.newest && S.newest.status === "rejected" ? S.newest : null;
+  if (rej && rej.planned.length) {
+    line(rej.planned, "#c53030", 2.5, [8, 5]);
+    const p = rej.planned[0], q = rej.planned[rej.planned.length - 1];
+    g.strokeStyle = "#c53030"; g.lineWidth = 2.5;
+    g.beginPath(); g.moveTo(X(q[0]) - 7, Y(q[1]) - 7); g.lineTo(X(q[0]) + 7, Y(q[1]) + 7);
+    g.moveTo(X(q[0]) - 7, Y(q[1]) + 7); g.lineTo(X(q[0]) + 7, Y(q[1]) - 7); g.stroke();
+    g.fillStyle = "#c53030"; g.font = "bold 13px system-ui";
+    g.fillText(`REJECTED ${rej.id}: ${(rej.message || "").slice(0, 90)}`, 8, 18);
+    g.fillText("never flown", X(p[0]) + 8, Y(p[1]) - 8);
+  }
+  S.drawn = { plan: plan ? plan.id : null, zones: plan ? plan.zones.length : 0,
+              rejected: rej ? rej.id : null };
+  line(S.trail, S.contact ? "#111" : "#9aa5b1", 1.2);
   const t = S.telemetry;
   if (t && t.setpoint) {
     const p = t.setpoint.position;
@@ -159,8 +270,9 @@ function drawMap() {
   }
   if (t && t.position) {
     const p = t.position, v = t.velocity || [0, 0, 0];
-    g.fillStyle = "#111"; g.beginPath(); g.arc(X(p[0]), Y(p[1]), 7, 0, 2 * Math.PI); g.fill();
-    line([p, [p[0] + v[0], p[1] + v[1]]], "#111", 2);
+    const ink = S.contact ? "#111" : "#9aa5b1";  // grey: where it was when last heard
+    g.fillStyle = ink; g.beginPath(); g.arc(X(p[0]), Y(p[1]), 7, 0, 2 * Math.PI); g.fill();
+    line([p, [p[0] + v[0], p[1] + v[1]]], ink, 2);
   }
   g.fillStyle = "#52606d"; g.font = "12px system-ui";
   g.fillText("1 m grid, x east →, y north ↑", 8, cv.height - 8);
@@ -212,14 +324,18 @@ function drawSpeed() {
     g.stroke(); g.setLineDash([]);
   }
   g.beginPath(); g.strokeStyle = "#c53030"; g.lineWidth = 1.5; g.moveTo(L, Y(vmax)); g.lineTo(L + W, Y(vmax)); g.stroke();
+  S.drawn.vMaxLine = vMax();  // the line drawn at the limit in force (null: none known, drawn at 2)
+  g.fillStyle = "#c53030"; g.fillText(vMax() === null ? "v_max ?" : `v_max ${vMax()}`, L + W - 60, Y(vmax) - 4);
   g.save(); g.translate(10, T + H / 2); g.rotate(-Math.PI / 2); g.fillText("speed (m/s)", -30, -1); g.restore();
 }
 
 // ------------------------------------------------------------------ commands
 async function send(name) {
+  if (!token) { needToken("no token"); return; }
   logEvent(`command ${name} sent`);
   try {
-    const r = await fetch(`/api/cmd/${name}`, { method: "POST", headers: { "X-Rota-GS": "1" } });
+    const r = await fetch(`/api/cmd/${name}`, { method: "POST", headers: auth() });
+    if (r.status === 401) { needToken("the token was refused"); logEvent(`${name}: not sent (no valid token)`, "error"); return; }
     const reply = await r.json();
     logEvent(`${name}: ${reply.ok ? "ok" : "REFUSED"}${reply.message ? " - " + reply.message : ""}`,
              reply.ok ? "" : "error");
@@ -242,11 +358,51 @@ for (const b of document.querySelectorAll("button[data-cmd]")) {
 }
 
 // ------------------------------------------------------------------ wiring
-const es = new EventSource("/api/events");
 const handlers = { status: onStatus, telemetry: onTelemetry, plan: onPlan,
                    map: (m) => { S.map = m; logEvent(`map: ${m.cells.length} occupied cells seen from above`); },
-                   config: (c) => { S.config = c; }, reply: () => {} };
-for (const [name, fn] of Object.entries(handlers)) es.addEventListener(name, (e) => fn(JSON.parse(e.data)));
-es.onopen = () => { S.connected = true; $("conn").textContent = "page: live"; };
-es.onerror = () => { S.connected = false; $("conn").textContent = "page: reconnecting"; };
-setInterval(() => { drawMap(); drawSpeed(); if (S.status) showStatus(); }, 100);
+                   ages: (a) => { S.ages = { status: a.status, telemetry: a.telemetry, at: now() }; },
+                   reply: () => {} };
+
+function dispatch(block) {
+  let name = "message", data = "";
+  for (const line of block.split("\n")) {
+    if (line.startsWith("event: ")) name = line.slice(7);
+    else if (line.startsWith("data: ")) data += line.slice(6);
+  }
+  if (handlers[name] && data) handlers[name](JSON.parse(data));
+}
+
+let streaming = false;
+async function stream() {
+  if (streaming) return;
+  streaming = true;
+  while (token) {
+    try {
+      const r = await fetch("/api/events", { headers: auth(), cache: "no-store" });
+      if (r.status === 401) { needToken("the token was refused"); break; }
+      if (r.status === 403) { $("conn").textContent = "page: refused (403: host or origin)"; break; }
+      if (!r.ok) throw new Error(`HTTP ${r.status}`);
+      S.connected = true; $("conn").textContent = "page: live";
+      const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
+      let buf = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        buf += value;
+        for (let i; (i = buf.indexOf("\n\n")) >= 0; buf = buf.slice(i + 2)) dispatch(buf.slice(0, i));
+      }
+    } catch (err) { /* the ground station is gone: try again */ }
+    S.connected = false;
+    if (token) $("conn").textContent = "page: reconnecting";
+    await new Promise((res) => setTimeout(res, 1000));
+  }
+  streaming = false;
+}
+
+if (token) stream(); else needToken("no token");
+setInterval(() => {
+  showContact();
+  if (S.status) showStatus();
+  if (S.telemetry) showTelemetry();
+  drawMap(); drawSpeed();
+}, 100);
