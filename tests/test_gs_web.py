@@ -43,8 +43,10 @@ LONG_REASON = ("tracking error 1.7 m over 1.5 m: the vehicle strayed from its pa
 
 class FakeService:
     """The service's Zenoh side for the ground station: ``status`` (every 5th tick)
-    and ``telemetry`` every 0.1 s while ``talking`` is set; ``cmd/*`` queries are
-    recorded in ``commands`` and answered ok."""
+    and ``telemetry`` every 0.1 s while ``talking`` is set, named as from this
+    session, which answers ``config`` (the ground station takes status only from
+    the session that does); ``cmd/*`` queries are recorded in ``commands`` and
+    answered ok."""
 
     def __init__(self) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
@@ -61,6 +63,10 @@ class FakeService:
                        "landed_state": "IN_AIR", "command": "hold", "hold_reason": LONG_REASON,
                        "limits": {"v_max": 1.2, "a_max": [2.0, 2.0, 1.5]}}
         self._queryable = self.session.declare_queryable(f"rota/{VEHICLE}/cmd/*", self._on_cmd)
+        self._config = self.session.declare_queryable(
+            f"rota/{VEHICLE}/config", lambda q: q.reply(q.key_expr, json.dumps(
+                {"schema": "rota/config", "ok": True, "message": "", "config": {}})))
+        self._sn = 0
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -77,15 +83,22 @@ class FakeService:
             if not self.talking.is_set():
                 continue
             self.session.put(f"rota/{VEHICLE}/telemetry", json.dumps(
-                {"position": [1.0, 2.0, 3.0], "velocity": [0.9, 0.2, 0.0], "setpoint": None}))
+                {"position": [1.0, 2.0, 3.0], "velocity": [0.9, 0.2, 0.0], "setpoint": None}),
+                source_info=self._source())
             if k % 5 == 0:
-                self.session.put(f"rota/{VEHICLE}/status", json.dumps(self.status))
+                self.session.put(f"rota/{VEHICLE}/status", json.dumps(self.status),
+                                 source_info=self._source())
             k += 1
+
+    def _source(self) -> zenoh.SourceInfo:
+        self._sn += 1
+        return zenoh.SourceInfo(self.session.id, self._sn)
 
     def close(self) -> None:
         self._closed.set()
         self._thread.join(2)
         self._queryable.undeclare()
+        self._config.undeclare()
         self.session.close()
 
 
