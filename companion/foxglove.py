@@ -91,6 +91,14 @@ PLOT_SCHEMAS: dict[str, dict[str, Any]] = {
 }
 
 
+#: Every topic :class:`Scene` writes, and its message (a Foxglove class or a plot name).
+TOPICS: dict[str, Any] = {
+    "/foxglove/map": fm.SceneUpdate, "/foxglove/plan": fm.SceneUpdate,
+    "/foxglove/body": fm.SceneUpdate, "/foxglove/setpoint": fm.PoseInFrame,
+    "/foxglove/vehicle": fm.PoseInFrame, "/tf": fm.FrameTransform, "/foxglove/log": fm.Log,
+    "/plot/command": "rota.plot.Command", "/plot/vehicle": "rota.plot.Vehicle"}
+
+
 @dataclass(frozen=True)
 class Schema:
     """How a topic is written: its schema (name, encoding, data) and message encoding."""
@@ -313,7 +321,7 @@ class Scene:
             pose=fm.Pose(position=_v3(p), orientation=_quat(self.yaw))))
         source = str(sp.get("source") or "")
         limit, in_zone = self._plan_at(source, stamp)
-        speed = float(np.linalg.norm(v)) if v is not None else 0.0
+        speed = _norm(v) if v is not None else 0.0
         yield _plot("/plot/command", "rota.plot.Command", {
             "speed": round(speed, 4), "v_max": self.v_max, "chance_limit": limit,
             "braking_zone": in_zone, "plan": source})
@@ -353,7 +361,7 @@ class Scene:
                 self._body_sent = True
                 yield self.body(stamp)
         yield _plot("/plot/vehicle", "rota.plot.Vehicle", {
-            "speed": None if v is None else round(float(np.linalg.norm(v)), 4),
+            "speed": None if v is None else round(_norm(v), 4),
             "tracking_error": _float(tel.get("tracking_error")),
             "brake_threshold": self.brake_at})
 
@@ -374,6 +382,10 @@ class Scene:
             timestamp=_stamp(stamp), level=_LEVELS.get(str(entry.get("level")),
                                                        fm.LogLevel.Unknown),
             message=str(entry.get("message", "")), name=str(entry.get("logger", ""))))
+
+
+def _norm(v: Any) -> float:
+    return math.hypot(*(float(x) for x in v))
 
 
 def _float(x: Any) -> float | None:

@@ -259,3 +259,33 @@ def test_unknown_channels_are_not_shown_and_bad_messages_are_counted(tmp_path):
     assert [c for c, _, _ in read(rec.files)] == ["retimed", "setpoint"]
     assert set(decode_all(rec.files)) == {"/retimed", "/setpoint", "/foxglove/setpoint",
                                           "/plot/command"}
+
+
+def test_the_shipped_layout_is_the_generated_one_and_shows_recorded_topics(flight):
+    from pathlib import Path
+
+    from companion.foxglove import TOPICS
+    from companion.gs.foxglove import layout_json
+
+    shipped = Path(__file__).parent.parent / "docs" / "foxglove" / "layout.json"
+    assert shipped.read_text() == layout_json()  # `rota-gs foxglove --layout` wrote it
+    text = shipped.read_text()
+    named = {t for t in TOPICS if f'"{t}' in text}
+    assert named == set(TOPICS) - {"/tf"}  # /tf is used through follow_tf
+    assert named <= set(flight["decoded"]) and '"followTf": "base_link"' in text
+
+
+def test_rota_gs_foxglove_renders_a_record_and_refuses_bad_input(flight, tmp_path, capsys):
+    from companion.gs.cli import main
+
+    out = tmp_path / "scene.png"
+    assert main(["foxglove", "--render", str(out), *map(str, flight["files"])]) == 0
+    assert out.stat().st_size > 20_000
+    assert main(["foxglove", str(flight["files"][0])]) == 2  # serving takes no files
+    assert "only with --render" in capsys.readouterr().err
+    plain = tmp_path / "plain"
+    rec = Recorder(plain, "t", foxglove=False).start()
+    rec.put("setpoint", {"p": [0, 0, 1], "v": [0, 0, 0]}, 1.0)
+    rec.close()
+    assert main(["foxglove", "--render", str(out), str(rec.files[0])]) == 2
+    assert "no Foxglove channels" in capsys.readouterr().err

@@ -395,6 +395,36 @@ def cmd_web(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_foxglove(args: argparse.Namespace) -> int:
+    if args.layout:
+        from companion.gs.foxglove import layout_json
+
+        Path(args.layout).write_text(layout_json())
+        print(f"layout: {args.layout}")
+        return EXIT_OK
+    if args.render:
+        from companion.gs.foxglove_render import render
+
+        if not args.files:
+            raise InputError("foxglove --render", "give the record's MCAP file(s)")
+        for f in args.files:
+            if not Path(f).is_file():
+                raise InputError("foxglove", f"{f}: no such file")
+        try:
+            out = render(args.files, args.render, title=args.title or Path(args.files[0]).name)
+        except ValueError as exc:
+            raise InputError("foxglove --render", str(exc)) from None
+        print(f"scene: {out}")
+        return EXIT_OK
+    if args.files:
+        raise InputError("foxglove", "record files only with --render (Foxglove opens "
+                         "records itself)")
+    from companion.gs.foxglove import serve
+
+    serve(lambda vehicle: _station(args, vehicle), args.vehicle, args.host, args.port)
+    return EXIT_OK
+
+
 # ------------------------------------------------------------------ parser
 def make_parser() -> argparse.ArgumentParser:
     doc = (__doc__ or "").split("\n\n")
@@ -492,6 +522,16 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default "
                    "127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8470, help="port (default 8470)")
+    p = add("foxglove", cmd_foxglove, "serve the vehicle live to Foxglove over its WebSocket "
+            "protocol (ws://127.0.0.1:8765), or draw a record's Foxglove scene")
+    p.add_argument("files", nargs="*", metavar="FILE", help="--render: MCAP record file(s)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default "
+                   "127.0.0.1: this machine only; the protocol has no authentication)")
+    p.add_argument("--port", type=int, default=8765, help="port (default 8765, Foxglove's)")
+    p.add_argument("--render", metavar="OUT", help="draw the Foxglove channels of the record "
+                   "FILE(s) to OUT (PNG, SVG or PDF) instead of serving")
+    p.add_argument("--title", help="--render: title (default: the file name)")
+    p.add_argument("--layout", metavar="OUT", help="write the Foxglove layout (JSON) to OUT")
     return parser
 
 
