@@ -291,7 +291,8 @@ def _await(probe, timeout_s: float) -> Any:  # noqa: ANN001
     return None
 
 
-ROS_OPTIONS = ("config", "layout", "domain_id", "namespace", "topic", "bspline_msg")
+ROS_OPTIONS = ("config", "layout", "distro", "domain_id", "namespace", "topic", "bspline_type",
+               "bspline_msg")
 
 
 def _ros_message(args: argparse.Namespace, kind: str) -> tuple[RosMessage, Config]:
@@ -301,7 +302,8 @@ def _ros_message(args: argparse.Namespace, kind: str) -> tuple[RosMessage, Confi
     from companion.config import ConfigError, from_dict, load
     from companion.ros2.send import read_message
 
-    flags = {"layout": args.layout, "domain_id": args.domain_id, "namespace": args.namespace,
+    flags = {"layout": args.layout, "distro": args.distro, "domain_id": args.domain_id,
+             "namespace": args.namespace, "bspline_type": args.bspline_type,
              "bspline_msg": args.bspline_msg, f"{kind}_topic": args.topic}
     try:
         cfg = from_dict({"ros2": {k: v for k, v in flags.items() if v is not None}},
@@ -486,17 +488,22 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--config", metavar="FILE", help="the service's companion.toml")
     g.add_argument("--layout", choices=("rmw_zenoh", "ros2dds"),
                    help="rmw_zenoh (default) or ros2dds (zenoh-bridge-ros2dds)")
+    g.add_argument("--distro", choices=("humble", "jazzy"), help="the ROS 2 of the service's "
+                   "peers: jazzy (default; also Kilted, Rolling) or humble")
     g.add_argument("--domain-id", type=int, metavar="N", help="ROS_DOMAIN_ID (rmw_zenoh)")
     g.add_argument("--namespace", metavar="NS", help="node namespace (rmw_zenoh) or the "
                    "bridge's namespace (ros2dds)")
     g.add_argument("--topic", metavar="TOPIC", help="the topic (default: [ros2] <kind>_topic)")
-    g.add_argument("--bspline-msg", metavar="DEF", help="ego-planner, ego-planner-swarm or "
-                   "the path of a Bspline.msg")
+    g.add_argument("--bspline-type", metavar="TYPE", help="traj_utils/msg/Bspline "
+                   "(ego-planner-swarm, default), ego_planner/msg/Bspline (EGO-Planner) or "
+                   "plan_manage/msg/Bspline (Fast-Planner)")
+    g.add_argument("--bspline-msg", metavar="DEF", help="another layout: ego-planner, "
+                   "ego-planner-swarm, fast-planner or the path of a Bspline.msg")
     p = add("send", cmd_send, "send a trajectory (rota/trajectory JSON, or a ROS message "
             "with --ros2) and show its re-time", (ros,))
     p.add_argument("file")
     p.add_argument("--ros2", choices=("bspline", "path", "multidof"), metavar="KIND",
-                   help="FILE is a ROS message: bspline (traj_utils/msg/Bspline), path "
+                   help="FILE is a ROS message: bspline ([ros2] bspline_type), path "
                    "(nav_msgs/msg/Path) or multidof (trajectory_msgs/msg/"
                    "MultiDOFJointTrajectory)")
     p.add_argument("--keep-stamp", action="store_true",

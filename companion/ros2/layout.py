@@ -3,7 +3,9 @@ attachments of the two layouts (sources in ``docs/ros2.md``).
 
 ``rmw_zenoh`` (ros2/rmw_zenoh, ``docs/design.md``):
 
-* data: ``<domain>/<fully qualified topic, no leading />/<DDS type>/<RIHS01 hash>``;
+* data: ``<domain>/<fully qualified topic, no leading />/<DDS type>/<RIHS01 hash>``
+  (Humble: ``TypeHashNotSupported`` in place of the hash, ros2/rmw_zenoh PR 388; the
+  tokens, QoS and attachment of rmw_zenoh 0.1.2+ on Humble are Jazzy's);
 * tokens: ``@ros2_lv/<domain>/<zid>/<node id>/<node id>/NN/<enclave>/<namespace>/<node>``
   for the node and ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<MP|MS>/<enclave>/
   <namespace>/<node>/<topic>/<DDS type>/<hash>/<qos>`` per publisher and subscription,
@@ -107,7 +109,8 @@ class RmwZenoh:
         self._ids: dict[Endpoint, int] = {}
 
     def hash(self, ep: Endpoint) -> str:
-        return type_hash(ep.typename, self.s.bspline_msg, self.s.bspline_type)
+        """The type hash in keys and tokens: RIHS01, or Humble's ``TypeHashNotSupported``."""
+        return type_hash(ep.typename, self.s.bspline_msg, self.s.bspline_type, self.s.distro)
 
     def fq(self, ep: Endpoint) -> str:
         return resolve(ep.topic, self._ns)
