@@ -25,8 +25,15 @@ from mcap.records import Schema as McapSchema
 from mcap_protobuf.decoder import DecoderFactory
 
 from companion.config import to_toml
-from companion.demo import demo_config, free_tcp_port, plan_async, start_holding, take_off
-from companion.demo import to_local, trajectory_message
+from companion.demo import (
+    demo_config,
+    free_tcp_port,
+    plan_async,
+    start_holding,
+    take_off,
+    to_local,
+    trajectory_message,
+)
 from companion.gs import GroundStation
 from companion.gs.foxglove import LiveView
 from companion.record import CHUNK_BYTES, read_raw
@@ -147,7 +154,7 @@ def test_the_live_server_serves_the_flight_to_a_websocket_client(killed_flight):
     assert SHOWN <= client.topics(), client.topics()
     factory, decoders, got = DecoderFactory(), {}, {}
     by_topic = {ch["topic"]: ch for ch in client.channels.values()}
-    for topic, stamp, payload in client.received:
+    for topic, _, payload in client.received:
         ch = by_topic[topic]
         if ch["encoding"] == "protobuf":
             assert ch["schemaEncoding"] == "protobuf"
