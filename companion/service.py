@@ -261,7 +261,8 @@ class Service:
             self.outbox.send)
         self.inputs.record = self._record_input
         if self.cfg.ros2.enabled:
-            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send)
+            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send,
+                                 warn=self.report.warn)
 
     def _ros2_put(self, kind: str, decode: DecodeFn, payload: bytes) -> None:
         """A ROS message, on Zenoh's thread: the inputs' byte cap and rate limit, then

@@ -6,6 +6,7 @@ their upstream layouts, CDR built independently with rosbags' typestore."""
 from __future__ import annotations
 
 import queue
+import re
 import time
 
 import numpy as np
@@ -160,6 +161,36 @@ def test_a_humble_planner_over_zenoh(sessions, distro):  # noqa: F811
         else:
             with pytest.raises(Rejected, match='Humble .* distro = "humble"'):
                 fn(payload, cfg(), time.time())
+    finally:
+        peer.close()
+        link.close()
+
+
+@pytest.mark.parametrize(("distro", "peer_hash", "words"), [
+    ("jazzy", HUMBLE, r'node listener is a ROS 2 Humble subscriber of /rota/status .* set '
+                      r'\[ros2\] distro = "humble"'),
+    ("humble", STRING_HASH, r"node listener is a ROS 2 Jazzy, Kilted or Rolling subscriber of "
+                            r'/rota/status .* set \[ros2\] distro = "jazzy"'),
+])
+def test_a_subscriber_of_the_other_distro_is_reported_from_its_token(sessions, distro,  # noqa: F811
+                                                                      peer_hash, words):
+    """No data ever flows to such a subscriber: its liveliness token is all there is."""
+    service, ros = sessions
+    said: queue.Queue = queue.Queue()
+    link = Ros2Link(service, Ros2Settings(enabled=True, distro=distro), Inbox(),
+                    warn=lambda message, source: said.put((source, message)))
+    peer = RosPeer(ros, "rmw_zenoh", node="listener")
+    try:
+        # a subscriber of the same flavour first: nothing to say about it
+        same = HUMBLE if distro == "humble" else STRING_HASH
+        peer.advertise("/rota/status", STRING, "std_msgs::msg::dds_::String_", same, kind="MS")
+        peer.advertise("/rota/status", STRING, "std_msgs::msg::dds_::String_", peer_hash,
+                       kind="MS")
+        source, message = said.get(timeout=10)
+        assert source == "ros2"
+        assert re.search(words, message), message
+        time.sleep(0.5)
+        assert said.empty()  # once, and not for the one of the same flavour
     finally:
         peer.close()
         link.close()

@@ -128,6 +128,10 @@ class RmwZenoh:
     def hash_in(key: str) -> str | None:
         return key.rsplit("/", 1)[-1]
 
+    def watch_key(self, ep: Endpoint) -> tuple[str, str]:
+        """(topic, DDS type) as a peer's token of the same topic writes them."""
+        return mangle(self.fq(ep)), dds_type_name(ep.typename)
+
     def node_token(self) -> str:
         return self._node.format(eid=self.NODE_ID, kind="NN")
 
