@@ -289,3 +289,13 @@ def test_rota_gs_foxglove_renders_a_record_and_refuses_bad_input(flight, tmp_pat
     rec.close()
     assert main(["foxglove", "--render", str(out), str(rec.files[0])]) == 2
     assert "no Foxglove channels" in capsys.readouterr().err
+
+
+def test_rota_gs_foxglove_without_a_service_says_so(capsys):
+    from companion.demo import free_tcp_port
+    from companion.gs.cli import main
+
+    port = free_tcp_port()  # nobody listens there
+    assert main(["foxglove", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5",
+                 "--port", "0"]) == 3
+    assert f"cannot reach tcp/127.0.0.1:{port}" in capsys.readouterr().err

@@ -1,7 +1,8 @@
 """rota-gs: the ground station on the command line.
 
 Watch and command a vehicle running the flight service over Zenoh, send it
-trajectories and maps, replay its flight records, or serve the local web page.
+trajectories and maps, replay its flight records, or serve the local web page
+or the vehicle live to Foxglove.
 Guide: docs/groundstation.md.
 
 Exit status: 0 done; 1 refused by the service, or the state did not confirm a
