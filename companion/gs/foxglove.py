@@ -99,13 +99,11 @@ class LiveView:
         while (item := self._q.get()) is not None:
             channel, payload, stamp = item
             try:
-                outs = self.scene.translate(channel, payload, stamp)
+                for out in self.scene.translate(channel, payload, stamp):
+                    self._log(out, stamp)
             except Exception as exc:  # noqa: BLE001 - one bad message must not end the view
                 log.warning("cannot show a %s message: %s: %s", channel, type(exc).__name__,
                             exc)
-                continue
-            for out in outs:
-                self._log(out, stamp)
 
     def _log(self, out: Out, stamp: float) -> None:
         ch = self._channels[out.topic]
