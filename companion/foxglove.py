@@ -99,6 +99,11 @@ TOPICS: dict[str, Any] = {
     "/plot/command": "rota.plot.Command", "/plot/vehicle": "rota.plot.Vehicle"}
 
 
+#: Topics whose last message stays in force (the map until the next one, the plan
+#: until the next re-time, the body): a new part of a record starts with them again.
+LATCHED = ("/foxglove/map", "/foxglove/plan", "/foxglove/body")
+
+
 @dataclass(frozen=True)
 class Schema:
     """How a topic is written: its schema (name, encoding, data) and message encoding."""
@@ -227,6 +232,8 @@ class Scene:
         self.plans: dict[str, _Plan] = {}
         self.yaw: float | None = None
         self._body_sent = False
+        #: the last message of each :data:`LATCHED` topic (a new record part repeats them)
+        self.latched: dict[str, Out] = {}
 
     def translate(self, channel: str, payload: Any, stamp: float) -> list[Out]:
         """The Foxglove messages for one of the service's messages (JSON bytes or
@@ -239,7 +246,11 @@ class Scene:
         if not isinstance(payload, dict) and not (channel == "map"
                                                    and hasattr(payload, "occupied")):
             return []
-        return list(make(payload, stamp))
+        out = list(make(payload, stamp))
+        for m in out:
+            if m.topic in LATCHED:
+                self.latched[m.topic] = m
+        return out
 
     # ------------------------------------------------------------ per channel
     def _config(self, cfg: dict[str, Any], stamp: float) -> Iterator[Out]:

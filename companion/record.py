@@ -219,6 +219,9 @@ class Recorder:
                 self._open()
                 f = self._file
                 self._prune()
+                if self.scene is not None:  # each part shows the map and plan on its own
+                    for m in self.scene.latched.values():
+                        f.write(m.topic, m.data, stamp, m.schema)
         if self.dropped > self._reported_drops and time.monotonic() - self._last_report > 5.0:
             log.warning("flight record: %d messages dropped so far (the writer fell behind)",
                         self.dropped)

@@ -299,3 +299,24 @@ def test_rota_gs_foxglove_without_a_service_says_so(capsys):
     assert main(["foxglove", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5",
                  "--port", "0"]) == 3
     assert f"cannot reach tcp/127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_every_part_of_a_rotated_record_shows_the_map_and_plan(flight, tmp_path):
+    """Foxglove opens one file at a time: each part starts with the map, the plan and
+    the body in force."""
+    rec = Recorder(tmp_path, "parts", max_file_mb=0.1, max_total_mb=100.0).start()
+    for channel, stamp, m in read(flight["files"]):
+        if channel == "map":
+            rec.show("map", flight["vmap"], stamp)
+        rec.put(channel, json.dumps(m).encode() if channel in ("map", "retimed") else m, stamp)
+    sp, t = flight["sp"], flight["start"] + 10.0
+    for _ in range(6):
+        for k in range(len(sp.t)):
+            rec.put("setpoint", {"p": sp.position[k], "v": sp.velocity[k], "source": "plan-0"},
+                    t)
+            t += 0.02
+    rec.close()
+    assert len(rec.files) >= 3
+    for path in rec.files:
+        got = decode_all([path])
+        assert {"/foxglove/map", "/foxglove/plan", "/foxglove/body"} <= set(got), path

@@ -24,15 +24,20 @@ from typing import Any
 import foxglove
 from foxglove import layouts as fl
 
-from companion.foxglove import BODY_FRAME, MAP_FRAME, TOPICS, Out, Scene, schema_of
+from companion.foxglove import (
+    BODY_FRAME,
+    LATCHED,
+    MAP_FRAME,
+    TOPICS,
+    Out,
+    Scene,
+    schema_of,
+)
 from companion.gs.client import GroundStation, GroundStationError
 
 log = logging.getLogger("rota.gs.foxglove")
 
 DEFAULT_PORT = 8765
-#: Topics a client that subscribes late gets the last message of again (the map
-#: is published once; a plan lasts until the next one).
-LATCHED = ("/foxglove/map", "/foxglove/plan", "/foxglove/body")
 
 
 class LiveView:
