@@ -193,7 +193,7 @@ class Recorder:
         while not self._stop.is_set():
             self._stop.wait(0.05)
             try:
-                self._drain()
+                self._drain(until=self._stop)
             except Exception as exc:  # noqa: BLE001 - a full disk must not stop the flight
                 self.error = f"{type(exc).__name__}: {exc}"
                 log.error("flight record stopped: %s", self.error)
@@ -201,9 +201,11 @@ class Recorder:
                 self._q.clear()
                 return
 
-    def _drain(self) -> None:
+    def _drain(self, until: threading.Event | None = None) -> None:
+        """Write what is queued (the thread stops early once ``until`` is set: then
+        :meth:`close` writes the rest, never both at once)."""
         q, f = self._q, self._file
-        while q:
+        while q and not (until is not None and until.is_set()):
             channel, payload, stamp, view_only = q.popleft()
             if not view_only:
                 try:
@@ -214,6 +216,10 @@ class Recorder:
                 self.written += 1
             if self.scene is not None and (view_only or channel != "map"):
                 self._write_scene(f, channel, payload, stamp)
+            # Hand the GIL over between messages: a thread waiting for it (the event
+            # loop, the setpoint stream) gets it now, not after Python's 5 ms switch
+            # interval while this thread goes on encoding.
+            time.sleep(0)
             if f.size() >= self.max_file:
                 f.close()
                 self._open()
