@@ -14,7 +14,10 @@ Channels (topic ``/<name>``, message encoding ``json``): ``trajectory`` and
 ``map`` (as received), ``retimed`` (``rota/result``), ``setpoint`` (every one
 sent: ``t`` monotonic, ``p``, ``v``, ``a`` ENU, ``yaw``, ``source``),
 ``telemetry``, ``status``, ``log`` (events, warnings and errors) and ``config``.
-Replay: ``rota-gs replay FILE``; formats in ``docs/groundstation.md``.
+Beside them, the same flight in Foxglove's well-known schemas (the map, the paths,
+the setpoints and the vehicle in 3D, and figures to plot: :mod:`companion.foxglove`),
+made in the writer thread too. Replay: ``rota-gs replay FILE``; formats in
+``docs/groundstation.md``.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ import numpy as np
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
+from companion.foxglove import Scene, Schema
+
 log = logging.getLogger("rota.record")
 
 #: Chunk size: a crash loses at most one unfinished chunk (a few seconds of flight).
@@ -49,6 +54,7 @@ class RecordSettings:
     max_file_mb: float = 100.0  # start a new file beyond this size
     max_total_mb: float = 2000.0  # delete the oldest records beyond this total
     queue: int = 20000  # messages waiting for the writer; more are dropped and counted
+    foxglove: bool = True  # also write the flight in Foxglove's schemas (companion.foxglove)
 
 
 def _jsonable(x: Any) -> Any:
@@ -78,14 +84,21 @@ class _File:
         self._channels: dict[str, int] = {}
         self._seq = 0
 
-    def write(self, channel: str, data: bytes, stamp: float) -> None:
+    def write(self, channel: str, data: bytes, stamp: float, schema: Schema | None = None) -> None:
+        """One message on ``channel`` (topic ``/<channel>``, JSON), or with ``schema``
+        on the topic ``channel`` as that schema says (a Foxglove message)."""
         cid = self._channels.get(channel)
         if cid is None:
-            schema = json.dumps({"title": f"rota/{channel}", "type": "object"}).encode()
-            sid = self.writer.register_schema(name=f"rota/{channel}", encoding="jsonschema",
-                                              data=schema)
+            if schema is None:
+                schema = Schema(f"rota/{channel}", "jsonschema", json.dumps(
+                    {"title": f"rota/{channel}", "type": "object"}).encode(), "json")
+                topic = f"/{channel}"
+            else:
+                topic = channel
+            sid = self.writer.register_schema(name=schema.name, encoding=schema.encoding,
+                                              data=schema.data)
             cid = self._channels[channel] = self.writer.register_channel(
-                topic=f"/{channel}", message_encoding="json", schema_id=sid)
+                topic=topic, message_encoding=schema.message_encoding, schema_id=sid)
         ns = int(stamp * 1e9)
         self._seq += 1
         self.writer.add_message(channel_id=cid, log_time=ns, data=data, publish_time=ns,
@@ -106,7 +119,7 @@ class Recorder:
     thread writes MCAP files named ``<name>-<UTC time>-<n>.mcap`` in ``directory``."""
 
     def __init__(self, directory: str | Path, name: str = "rota", max_file_mb: float = 100.0,
-                 max_total_mb: float = 2000.0, queue: int = 20000) -> None:
+                 max_total_mb: float = 2000.0, queue: int = 20000, foxglove: bool = True) -> None:
         if max_file_mb <= 0 or max_total_mb < max_file_mb or queue < 1:
             raise ValueError("record: need max_file_mb > 0, max_total_mb >= max_file_mb, "
                              "queue >= 1")
@@ -115,7 +128,7 @@ class Recorder:
         self.max_file = int(max_file_mb * 1e6)
         self.max_total = int(max_total_mb * 1e6)
         self._cap = queue
-        self._q: deque[tuple[str, Any, float]] = deque()
+        self._q: deque[tuple[str, Any, float, bool]] = deque()
         self.dropped = 0
         self.written = 0
         self.files: list[Path] = []
@@ -125,11 +138,14 @@ class Recorder:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: str | None = None
+        #: Foxglove's messages for each one recorded (None: not written)
+        self.scene: Scene | None = Scene(_pause) if foxglove else None
+        self.scene_errors = 0
 
     @classmethod
     def from_settings(cls, settings: RecordSettings, state_dir: str, name: str) -> Recorder:
         return cls(settings.dir or Path(state_dir) / "records", name, settings.max_file_mb,
-                   settings.max_total_mb, settings.queue)
+                   settings.max_total_mb, settings.queue, settings.foxglove)
 
     # ------------------------------------------------------------ the hot path
     def put(self, channel: str, payload: bytes | dict[str, Any],
@@ -139,7 +155,19 @@ class Recorder:
         if len(self._q) >= self._cap:
             self.dropped += 1
             return
-        self._q.append((channel, payload, time.time() if stamp is None else stamp))
+        self._q.append((channel, payload, time.time() if stamp is None else stamp, False))
+
+    def show(self, channel: str, obj: Any, stamp: float | None = None) -> None:
+        """Queue ``obj`` for the Foxglove view only (not recorded as JSON): the map in
+        use as decoded (a :class:`rota.voxelmap.VoxelMap`), whatever it came as. The
+        recorded ``map`` channel (JSON bytes, or a ROS message) is not parsed again
+        here: 1 MB of JSON would hold the GIL for tens of milliseconds in one go."""
+        if self.scene is None:
+            return
+        if len(self._q) >= self._cap:
+            self.dropped += 1
+            return
+        self._q.append((channel, obj, time.time() if stamp is None else stamp, True))
 
     # ------------------------------------------------------------ the writer
     def start(self) -> Recorder:
@@ -165,7 +193,7 @@ class Recorder:
         while not self._stop.is_set():
             self._stop.wait(0.05)
             try:
-                self._drain()
+                self._drain(until=self._stop)
             except Exception as exc:  # noqa: BLE001 - a full disk must not stop the flight
                 self.error = f"{type(exc).__name__}: {exc}"
                 log.error("flight record stopped: %s", self.error)
@@ -173,25 +201,51 @@ class Recorder:
                 self._q.clear()
                 return
 
-    def _drain(self) -> None:
+    def _drain(self, until: threading.Event | None = None) -> None:
+        """Write what is queued (the thread stops early once ``until`` is set: then
+        :meth:`close` writes the rest, never both at once)."""
         q, f = self._q, self._file
-        while q:
-            channel, payload, stamp = q.popleft()
-            try:
-                data = encode(payload)
-            except (TypeError, ValueError) as exc:
-                data = encode({"unencodable": str(exc)})
-            f.write(channel, data, stamp)
-            self.written += 1
+        while q and not (until is not None and until.is_set()):
+            channel, payload, stamp, view_only = q.popleft()
+            if not view_only:
+                try:
+                    data = encode(payload)
+                except (TypeError, ValueError) as exc:
+                    data = encode({"unencodable": str(exc)})
+                f.write(channel, data, stamp)
+                self.written += 1
+            if self.scene is not None and (view_only or channel != "map"):
+                self._write_scene(f, channel, payload, stamp)
+            # Hand the GIL over between messages: a thread waiting for it (the event
+            # loop, the setpoint stream) gets it now, not after Python's 5 ms switch
+            # interval while this thread goes on encoding.
+            time.sleep(0)
             if f.size() >= self.max_file:
                 f.close()
                 self._open()
                 f = self._file
                 self._prune()
+                if self.scene is not None:  # each part shows the map and plan on its own
+                    for m in self.scene.latched.values():
+                        f.write(m.topic, m.data, stamp, m.schema)
         if self.dropped > self._reported_drops and time.monotonic() - self._last_report > 5.0:
             log.warning("flight record: %d messages dropped so far (the writer fell behind)",
                         self.dropped)
             self._reported_drops, self._last_report = self.dropped, time.monotonic()
+
+    def _write_scene(self, f: _File, channel: str, payload: Any, stamp: float) -> None:
+        """The message in Foxglove's schemas; a message it cannot show is counted and
+        reported once, and the record goes on."""
+        try:
+            out = self.scene.translate(channel, payload, stamp)
+        except Exception as exc:  # noqa: BLE001 - a bad message must not stop the record
+            self.scene_errors += 1
+            if self.scene_errors == 1:
+                log.warning("flight record: no Foxglove view of a %s message (%s: %s)",
+                            channel, type(exc).__name__, exc)
+            return
+        for m in out:
+            f.write(m.topic, m.data, stamp, m.schema)
 
     def _prune(self) -> None:
         """Delete the oldest records while the directory holds more than the cap."""
@@ -224,17 +278,26 @@ class Recorder:
 
     def stats(self) -> dict[str, Any]:
         return {"file": str(self._file.path) if self._file else None, "written": self.written,
-                "dropped": self.dropped, "queued": len(self._q), "error": self.error}
+                "dropped": self.dropped, "queued": len(self._q), "error": self.error,
+                "foxglove_errors": self.scene_errors}
 
     def log_handler(self, level: int = logging.INFO) -> logging.Handler:
         """A logging handler that records events, warnings and errors (``log``)."""
         return _LogHandler(self, level)
 
 
+def _pause() -> None:
+    """Between batches of a large Foxglove scene: let the event loop run."""
+    time.sleep(0.0005)
+
+
 class NoRecorder:
     """What the service holds when recording is disabled: ``put`` does nothing."""
 
     def put(self, channel: str, payload: Any, stamp: float | None = None) -> None:
+        pass
+
+    def show(self, channel: str, obj: Any, stamp: float | None = None) -> None:
         pass
 
     def start(self) -> NoRecorder:
@@ -269,8 +332,19 @@ class _LogHandler(logging.Handler):
 def read(paths: Iterable[str | Path],
          channels: Iterable[str] | None = None) -> Iterator[tuple[str, float, Any]]:
     """``(channel, stamp, message)`` from flight records, in time order per file;
-    a file cut short (power loss) yields what it holds."""
+    a file cut short (power loss) yields what it holds. Only the service's own
+    channels (JSON, schema ``rota/<channel>``), not their Foxglove views."""
     topics = None if channels is None else [f"/{c}" for c in channels]
+    for schema, channel, message in read_raw(paths, topics):
+        if schema is not None and schema.name.startswith("rota/"):
+            yield channel.topic[1:], message.log_time / 1e9, json.loads(message.data)
+
+
+def read_raw(paths: Iterable[str | Path], topics: Iterable[str] | None = None,
+             ) -> Iterator[tuple[Any, Any, Any]]:
+    """MCAP's ``(schema, channel, message)`` of every message on ``topics`` (default
+    all), in time order per file; a file cut short yields what its whole chunks hold."""
+    topics = None if topics is None else list(topics)
     for path in paths:
         with open(path, "rb") as fh:
             try:  # a finished file: through its index
@@ -285,5 +359,4 @@ def read(paths: Iterable[str | Path],
                 except Exception as exc:  # noqa: BLE001
                     log.warning("%s: cut short after %d messages (%s)", path, len(messages),
                                 type(exc).__name__)
-        for _, channel, message in messages:
-            yield channel.topic[1:], message.log_time / 1e9, json.loads(message.data)
+        yield from messages

@@ -265,7 +265,8 @@ class Service:
             self.outbox.send)
         self.inputs.record = self._record_input
         if self.cfg.ros2.enabled:
-            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send)
+            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send,
+                                 warn=self.report.warn)
 
     @staticmethod
     def _source_info(s: zenoh.Session):  # noqa: ANN205
@@ -319,6 +320,7 @@ class Service:
     async def _use_map(self, vmap: VoxelMap) -> None:
         await self.retimer.set_map(vmap)
         self.map = vmap
+        self.recorder.show("map", vmap)  # the map in use, drawn for Foxglove
         log.info("map: %d occupied voxels at %.2f m", len(vmap), vmap.resolution)
 
     async def _on_command(self, name: str, request: Any, peer: str) -> bytes:  # noqa: ARG002

@@ -31,7 +31,8 @@ def service(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("gs-ros2")
     mav, zport = free_udp_port(), free_tcp_port()
     cfg = demo_config(mav, zport, 2.0, str(tmp / "state"), record={"enabled": False},
-                      ros2={"enabled": True, "pointcloud_topic": "/map_generator/global_cloud"})
+                      ros2={"enabled": True, "pointcloud_topic": "/map_generator/global_cloud",
+                            "bspline_msg": "ego-planner"})
     config = tmp / "companion.toml"
     config.write_text(to_toml(cfg))
     endpoint = f"tcp/127.0.0.1:{zport}"

@@ -360,3 +360,13 @@ def test_a_token_file_is_its_owners_only(tmp_path):
     Path(path).chmod(0o644)
     write_token(path, "def")  # an old file of ours is made private again
     assert stat.S_IMODE(path.stat().st_mode) == 0o600 and path.read_text() == "def\n"
+
+
+def test_foxglove_beyond_loopback_is_refused_in_one_line():
+    """Foxglove's protocol has no authentication: the live view stays on loopback."""
+    done = subprocess.run([sys.executable, "-m", "companion.gs.cli", "foxglove", "--host",
+                           "0.0.0.0", "-V", VEHICLE], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2, done
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no authentication" in lines[0] and "ssh -L" in lines[0]

@@ -36,11 +36,14 @@ def test_messages_round_trip_in_order_with_numpy_and_raw_bytes(tmp_path):
     assert got[0][2]["id"] == "plan-0" and got[0][1] == pytest.approx(100.0)
     msg = next(m for c, _, m in got if c == "log")
     assert msg["level"] == "WARNING" and "braking to a hold: test" in msg["message"]
-    # a standard MCAP file: its summary lists the channels with JSON encoding
+    # a standard MCAP file: its summary lists the channels with JSON encoding, and
+    # their Foxglove views (tests/test_foxglove.py)
     with open(rec.files[0], "rb") as fh:
         summary = make_reader(fh).get_summary()
     topics = {c.topic: c.message_encoding for c in summary.channels.values()}
-    assert topics == {"/trajectory": "json", "/setpoint": "json", "/log": "json"}
+    assert topics == {"/trajectory": "json", "/setpoint": "json", "/log": "json",
+                      "/foxglove/setpoint": "protobuf", "/plot/command": "json",
+                      "/foxglove/log": "protobuf"}
 
 
 def test_files_rotate_at_the_size_cap_and_the_oldest_go_beyond_the_total(tmp_path):

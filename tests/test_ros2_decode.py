@@ -51,6 +51,8 @@ T = TS.types
 
 
 def cfg(**ros2):
+    # EGO-Planner's layout under traj_utils/msg/Bspline, as the tests below build it
+    ros2.setdefault("bspline_msg", "ego-planner")
     return from_dict({"ros2": {"enabled": True, "path_topic": "/path",
                                "multidof_topic": "/traj", "pointcloud_topic": "/cloud", **ros2},
                       "safety": {"geofence_min": [-30.0, -30.0, -1.0],

@@ -62,7 +62,9 @@ def test_ego_planner_over_zenoh_flies_the_forest(layout):
     world = get_world("forest", seed=3)
     mav, zport = free_udp_port(), free_tcp_port()
     extra, peer_kw, status_key, retimed_key, ms_tokens = LAYOUTS[layout]
-    ros2 = {"enabled": True, "layout": layout, "pointcloud_topic": CLOUD, **extra}
+    # the EGO-Planner layout of tests/test_ros2_decode.py under traj_utils/msg/Bspline
+    ros2 = {"enabled": True, "layout": layout, "pointcloud_topic": CLOUD,
+            "bspline_msg": "ego-planner", **extra}
     statuses: queue.Queue = queue.Queue()
     retimed: queue.Queue = queue.Queue()
 
@@ -76,7 +78,7 @@ def test_ego_planner_over_zenoh_flies_the_forest(layout):
             await gs.wait_for(lambda st: st["state"] == "ready", 60, "the vehicle to be ready")
             # the service is on the ROS graph: its two subscriptions' tokens
             await asyncio.to_thread(peer.wait_tokens, ms_tokens, 2)
-            s = Ros2Settings(enabled=True)
+            s = Ros2Settings(enabled=True, bspline_msg="ego-planner")
             hb = TS.hash_rihs01(BSPLINE)
             bkey = peer.advertise("/planning/bspline", BSPLINE, "traj_utils::msg::dds_::Bspline_",
                                   hb)

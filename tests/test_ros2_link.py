@@ -139,7 +139,11 @@ class Inbox:
 
 
 def settings(**kw) -> Ros2Settings:
+    kw.setdefault("bspline_msg", "ego-planner")  # the layout these tests' planner sends
     return Ros2Settings(enabled=True, **kw)
+
+
+EGO = {"ros2": {"bspline_msg": "ego-planner"}}
 
 
 # --------------------------------------------- the documents' own examples
@@ -195,7 +199,7 @@ def test_rmw_zenoh_bspline_in_status_out(sessions):
         peer.publish(key, cdr)
         kind, fn, payload = inbox.get()
         assert (kind, fn, payload) == ("bspline", decode.decode_bspline, cdr)
-        decoded = fn(payload, from_dict({}), time.time())  # as the decoder calls it
+        decoded = fn(payload, from_dict(EGO), time.time())  # as the decoder calls it
         assert np.array_equal(decoded.trajectory.control_points, CPS)
 
         # another definition of the type (a different hash): a clear error, not silence
@@ -205,7 +209,7 @@ def test_rmw_zenoh_bspline_in_status_out(sessions):
         peer.publish(other, bspline_cdr(ts=swarm, drone_id=1))
         kind, fn, payload = inbox.get()
         with pytest.raises(Rejected, match="type hash RIHS01_.* is not RIHS01_"):
-            fn(payload, from_dict({}), time.time())  # as the decoder calls it
+            fn(payload, from_dict(EGO), time.time())  # as the decoder calls it
 
         # status out: the exact key of std_msgs/String with the design document's hash
         got: queue.Queue = queue.Queue()

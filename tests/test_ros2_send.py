@@ -23,7 +23,7 @@ from tests.test_ros2_decode import BSPLINE, CFG, CPS, DT, TS, bspline_cdr, heade
 from tests.test_ros2_link import Inbox, RosPeer, sessions  # noqa: F401 - a fixture
 
 T0 = 1718000000.25  # start_time of the examples: sec 1718000000, nanosec 250000000
-S = Ros2Settings(enabled=True)
+S = Ros2Settings(enabled=True, bspline_msg="ego-planner")  # the layout of bspline_fields()
 
 
 def bspline_fields() -> dict:
@@ -127,7 +127,8 @@ def test_an_input_that_is_off_needs_a_topic(tmp_path):
 def test_the_publisher_speaks_the_layout_to_the_service(sessions, tmp_path, layout):  # noqa: F811
     service, ros = sessions
     s = Ros2Settings(enabled=True, layout=layout, domain_id=3, namespace="/bot1",
-                     bspline_topic="planning/bspline")  # relative: under the namespace
+                     bspline_topic="planning/bspline",  # relative: under the namespace
+                     bspline_msg="ego-planner")
     inbox = Inbox()
     link = Ros2Link(service, s, inbox)
     (tmp_path / "b.json").write_text(json.dumps(bspline_fields()))

@@ -1,7 +1,8 @@
 """rota-gs: the ground station on the command line.
 
 Watch and command a vehicle running the flight service over Zenoh, send it
-trajectories and maps, replay its flight records, or serve the local web page.
+trajectories and maps, replay its flight records, or serve the local web page
+or the vehicle live to Foxglove.
 Guide: docs/groundstation.md.
 
 Exit status: 0 done; 1 refused by the service, or the state did not confirm a
@@ -334,7 +335,8 @@ def _await(probe, timeout_s: float) -> Any:  # noqa: ANN001
     return None
 
 
-ROS_OPTIONS = ("config", "layout", "domain_id", "namespace", "topic", "bspline_msg")
+ROS_OPTIONS = ("config", "layout", "distro", "domain_id", "namespace", "topic", "bspline_type",
+               "bspline_msg")
 
 
 def _ros_message(args: argparse.Namespace, kind: str) -> tuple[RosMessage, Config]:
@@ -344,7 +346,8 @@ def _ros_message(args: argparse.Namespace, kind: str) -> tuple[RosMessage, Confi
     from companion.config import ConfigError, from_dict, load
     from companion.ros2.send import read_message
 
-    flags = {"layout": args.layout, "domain_id": args.domain_id, "namespace": args.namespace,
+    flags = {"layout": args.layout, "distro": args.distro, "domain_id": args.domain_id,
+             "namespace": args.namespace, "bspline_type": args.bspline_type,
              "bspline_msg": args.bspline_msg, f"{kind}_topic": args.topic}
     try:
         cfg = from_dict({"ros2": {k: v for k, v in flags.items() if v is not None}},
@@ -441,6 +444,42 @@ def cmd_web(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_foxglove(args: argparse.Namespace) -> int:
+    if args.layout:
+        from companion.gs.foxglove import layout_json
+
+        Path(args.layout).write_text(layout_json())
+        print(f"layout: {args.layout}")
+        return EXIT_OK
+    if args.render:
+        from companion.gs.foxglove_render import render
+
+        if not args.files:
+            raise InputError("foxglove --render", "give the record's MCAP file(s)")
+        for f in args.files:
+            if not Path(f).is_file():
+                raise InputError("foxglove", f"{f}: no such file")
+        try:
+            out = render(args.files, args.render, title=args.title or Path(args.files[0]).name)
+        except ValueError as exc:
+            raise InputError("foxglove --render", str(exc)) from None
+        print(f"scene: {out}")
+        return EXIT_OK
+    if args.files:
+        raise InputError("foxglove", "record files only with --render (Foxglove opens "
+                         "records itself)")
+    from companion.gs.foxglove import serve
+    from companion.gs.webauth import is_loopback
+
+    if not is_loopback(args.host):
+        raise InputError("foxglove --host", f"{args.host}: Foxglove's WebSocket protocol has no "
+                         "authentication, so the vehicle's data is served on this machine's "
+                         "loopback only; reach it from elsewhere through SSH "
+                         f"(ssh -L {args.port}:127.0.0.1:{args.port} THIS-HOST)")
+    serve(lambda vehicle: _station(args, vehicle), args.vehicle, args.host, args.port)
+    return EXIT_OK
+
+
 # ------------------------------------------------------------------ parser
 def make_parser() -> argparse.ArgumentParser:
     doc = (__doc__ or "").split("\n\n")
@@ -504,17 +543,22 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--config", metavar="FILE", help="the service's companion.toml")
     g.add_argument("--layout", choices=("rmw_zenoh", "ros2dds"),
                    help="rmw_zenoh (default) or ros2dds (zenoh-bridge-ros2dds)")
+    g.add_argument("--distro", choices=("humble", "jazzy"), help="the ROS 2 of the service's "
+                   "peers: jazzy (default; also Kilted, Rolling) or humble")
     g.add_argument("--domain-id", type=int, metavar="N", help="ROS_DOMAIN_ID (rmw_zenoh)")
     g.add_argument("--namespace", metavar="NS", help="node namespace (rmw_zenoh) or the "
                    "bridge's namespace (ros2dds)")
     g.add_argument("--topic", metavar="TOPIC", help="the topic (default: [ros2] <kind>_topic)")
-    g.add_argument("--bspline-msg", metavar="DEF", help="ego-planner, ego-planner-swarm or "
-                   "the path of a Bspline.msg")
+    g.add_argument("--bspline-type", metavar="TYPE", help="traj_utils/msg/Bspline "
+                   "(ego-planner-swarm, default), ego_planner/msg/Bspline (EGO-Planner) or "
+                   "plan_manage/msg/Bspline (Fast-Planner)")
+    g.add_argument("--bspline-msg", metavar="DEF", help="another layout: ego-planner, "
+                   "ego-planner-swarm, fast-planner or the path of a Bspline.msg")
     p = add("send", cmd_send, "send a trajectory (rota/trajectory JSON, or a ROS message "
             "with --ros2) and show its re-time", (ros,))
     p.add_argument("file")
     p.add_argument("--ros2", choices=("bspline", "path", "multidof"), metavar="KIND",
-                   help="FILE is a ROS message: bspline (traj_utils/msg/Bspline), path "
+                   help="FILE is a ROS message: bspline ([ros2] bspline_type), path "
                    "(nav_msgs/msg/Path) or multidof (trajectory_msgs/msg/"
                    "MultiDOFJointTrajectory)")
     p.add_argument("--keep-stamp", action="store_true",
@@ -550,6 +594,16 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", action="append", metavar="HOST",
                    help="another host name the page answers to (how others reach it: "
                    "a DNS name, an address; repeatable)")
+    p = add("foxglove", cmd_foxglove, "serve the vehicle live to Foxglove over its WebSocket "
+            "protocol (ws://127.0.0.1:8765), or draw a record's Foxglove scene")
+    p.add_argument("files", nargs="*", metavar="FILE", help="--render: MCAP record file(s)")
+    p.add_argument("--host", default="127.0.0.1", help="loopback address to serve on (default "
+                   "127.0.0.1; the protocol has no authentication, so nothing else)")
+    p.add_argument("--port", type=int, default=8765, help="port (default 8765, Foxglove's)")
+    p.add_argument("--render", metavar="OUT", help="draw the Foxglove channels of the record "
+                   "FILE(s) to OUT (PNG, SVG or PDF) instead of serving")
+    p.add_argument("--title", help="--render: title (default: the file name)")
+    p.add_argument("--layout", metavar="OUT", help="write the Foxglove layout (JSON) to OUT")
     return parser
 
 

@@ -259,7 +259,19 @@ def decode_pointcloud(payload: bytes, cfg: Config, now: float | None = None) -> 
 def wrong_type(payload: bytes, cfg: Config, now: float | None = None, *, what: str, got: str,
                want: str) -> Incoming:
     """Stands in for a decoder when a message arrives with another type hash than the
-    definition the service knows: the planner's message differs (``[ros2] bspline_msg``)."""
+    service expects: a peer of another ROS 2 distribution (``[ros2] distro``), or the
+    planner's message differs (``[ros2] bspline_type`` / ``bspline_msg``)."""
+    from companion.ros2.types import HUMBLE_HASH
+
+    ignored = f"{len(payload)} bytes ignored"
+    if got == HUMBLE_HASH:
+        raise Rejected(f"{what}: the publisher runs ROS 2 Humble (its rmw_zenoh writes "
+                       f"{HUMBLE_HASH} where the type hash goes) and the service is set for "
+                       'Jazzy or later: set [ros2] distro = "humble"; ' + ignored)
+    if want == HUMBLE_HASH:
+        raise Rejected(f"{what}: the publisher runs ROS 2 Jazzy, Kilted or Rolling (type hash "
+                       f"{got}) and the service is set for Humble: set [ros2] distro = "
+                       '"jazzy"; ' + ignored)
     raise Rejected(f"{what}: the publisher's type hash {got} is not {want}, the one of "
-                   f"the definition configured ([ros2] bspline_msg / bspline_type); "
-                   f"{len(payload)} bytes ignored")
+                   f"the definition configured ([ros2] bspline_type, bspline_msg: is it "
+                   f"the planner's message?); " + ignored)

@@ -86,6 +86,8 @@ def bspline_cdr(traj: BSplineTrajectory, s: Ros2Settings, traj_id: int = 0,
     (``fields``: any other fields of the definition, e.g. ``drone_id``)."""
     store = _types(s)
     t = store.types
+    if "drone_id" in t[s.bspline_type].__dataclass_fields__:
+        fields.setdefault("drone_id", 0)  # ego-planner-swarm's
     msg = t[s.bspline_type](
         order=int(traj.degree), traj_id=int(traj_id),
         start_time=ros_time(t, time.time() if stamp is None else stamp),

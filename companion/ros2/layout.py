@@ -3,7 +3,9 @@ attachments of the two layouts (sources in ``docs/ros2.md``).
 
 ``rmw_zenoh`` (ros2/rmw_zenoh, ``docs/design.md``):
 
-* data: ``<domain>/<fully qualified topic, no leading />/<DDS type>/<RIHS01 hash>``;
+* data: ``<domain>/<fully qualified topic, no leading />/<DDS type>/<RIHS01 hash>``
+  (Humble: ``TypeHashNotSupported`` in place of the hash, ros2/rmw_zenoh PR 388; the
+  tokens, QoS and attachment of rmw_zenoh 0.1.2+ on Humble are Jazzy's);
 * tokens: ``@ros2_lv/<domain>/<zid>/<node id>/<node id>/NN/<enclave>/<namespace>/<node>``
   for the node and ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<MP|MS>/<enclave>/
   <namespace>/<node>/<topic>/<DDS type>/<hash>/<qos>`` per publisher and subscription,
@@ -107,7 +109,8 @@ class RmwZenoh:
         self._ids: dict[Endpoint, int] = {}
 
     def hash(self, ep: Endpoint) -> str:
-        return type_hash(ep.typename, self.s.bspline_msg, self.s.bspline_type)
+        """The type hash in keys and tokens: RIHS01, or Humble's ``TypeHashNotSupported``."""
+        return type_hash(ep.typename, self.s.bspline_msg, self.s.bspline_type, self.s.distro)
 
     def fq(self, ep: Endpoint) -> str:
         return resolve(ep.topic, self._ns)
@@ -124,6 +127,10 @@ class RmwZenoh:
     @staticmethod
     def hash_in(key: str) -> str | None:
         return key.rsplit("/", 1)[-1]
+
+    def watch_key(self, ep: Endpoint) -> tuple[str, str]:
+        """(topic, DDS type) as a peer's token of the same topic writes them."""
+        return mangle(self.fq(ep)), dds_type_name(ep.typename)
 
     def node_token(self) -> str:
         return self._node.format(eid=self.NODE_ID, kind="NN")

@@ -21,7 +21,7 @@ from companion.ros2 import decode
 from companion.ros2.encode import retimed_cdr_from_json, status_cdr
 from companion.ros2.layout import Endpoint, RmwZenoh, make_layout
 from companion.ros2.settings import Ros2Settings
-from companion.ros2.types import MULTIDOF, PATH, POINTCLOUD, STRING
+from companion.ros2.types import HUMBLE_HASH, MULTIDOF, PATH, POINTCLOUD, STRING
 
 log = logging.getLogger("rota.companion")
 
@@ -62,7 +62,8 @@ class Ros2Link:
     """Declares everything on ``session``; ``close()`` undeclares it."""
 
     def __init__(self, session: zenoh.Session, settings: Ros2Settings,
-                 deliver: Deliver, send: Send = send_now) -> None:
+                 deliver: Deliver, send: Send = send_now,
+                 warn: Callable[[str, str], None] | None = None) -> None:
         self.settings = settings
         self._send = send
         self.layout = make_layout(settings, str(session.zid()))
@@ -81,6 +82,15 @@ class Ros2Link:
         self.tokens = self.layout.tokens([ep for _, ep, _ in ins] + list(outs.values()))
         liveliness = session.liveliness()
         self._objs += [liveliness.declare_token(t) for t in self.tokens]
+        #: ``warn(message, source)``: a ROS peer of the other distribution (status)
+        self._warn = warn or (lambda message, source: log.warning("%s", message))
+        self._warned: set[str] = set()
+        if isinstance(self.layout, RmwZenoh):
+            self._watch = {(kind, layout_topic, dds): ep for ep, kind, layout_topic, dds in (
+                (ep, "MP" if ep.kind == "MS" else "MS", *self.layout.watch_key(ep))
+                for ep in [ep for _, ep, _ in ins] + list(outs.values()))}
+            self._objs.append(liveliness.declare_subscriber(
+                f"@ros2_lv/{settings.domain_id}/**", self._on_token, history=True))
         log.info("ROS 2 (%s): in %s, out %s", self.layout.name,
                  ", ".join(self.layout.sub_key(ep) for _, ep, _ in ins) or "-",
                  ", ".join(self.layout.key(ep) for ep in outs.values()) or "-")
@@ -102,6 +112,34 @@ class Ros2Link:
                 deliver(kind, fn, payload)
 
         return callback
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        """A ROS entity appeared: if it publishes one of the service's inputs or
+        subscribes to one of its outputs in the other distribution's form, say so once
+        (no data may ever flow to reveal it: a Humble subscriber gets nothing)."""
+        token = str(sample.key_expr)
+        if sample.kind != zenoh.SampleKind.PUT or token in self._warned:
+            return
+        parts = token.split("/")
+        if len(parts) < 13:  # not a publisher's or subscription's token
+            return
+        kind, node, topic, dds, got = parts[5], parts[8], parts[9], parts[10], parts[11]
+        ep = self._watch.get((kind, topic, dds))
+        if ep is None:
+            return
+        want = self.layout.hash(ep)
+        humble_peer = got == HUMBLE_HASH
+        if humble_peer == (want == HUMBLE_HASH):
+            return  # the same flavour (a differing definition shows when data arrives)
+        self._warned.add(token)
+        role = "publisher" if kind == "MP" else "subscriber"
+        if humble_peer:
+            fix, peer = 'set [ros2] distro = "humble"', "ROS 2 Humble"
+        else:
+            fix, peer = 'set [ros2] distro = "jazzy"', "ROS 2 Jazzy, Kilted or Rolling"
+        self._warn(f"ROS 2: node {node} is a {peer} {role} of {ep.topic} and the service "
+                   f"speaks {'Humble' if want == HUMBLE_HASH else 'Jazzy and later'}: they "
+                   f"cannot exchange messages; {fix}", "ros2")
 
     # ------------------------------------------------------------ outputs
     def put(self, name: str, cdr: bytes) -> None:

@@ -13,8 +13,11 @@ import re
 from dataclasses import dataclass
 
 LAYOUTS = ("rmw_zenoh", "ros2dds")
+#: ROS 2 distributions by what their rmw_zenoh writes for a type hash: "humble"
+#: (TypeHashNotSupported) or "jazzy" (RIHS01 hashes: Jazzy, Kilted, Rolling).
+DISTROS = ("humble", "jazzy")
 #: Bspline message definitions built in (``bspline_msg``); anything else is a file path.
-BSPLINE_VARIANTS = ("ego-planner", "ego-planner-swarm")
+BSPLINE_VARIANTS = ("ego-planner", "ego-planner-swarm", "fast-planner")
 
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 _NAME = re.compile(rf"/?{_TOKEN}(/{_TOKEN})*")
@@ -29,6 +32,7 @@ class Ros2Settings:
     enabled: bool = False  # subscribe and publish ROS topics on the service's Zenoh session
     layout: str = "rmw_zenoh"  # "rmw_zenoh" (ROS 2 with RMW_IMPLEMENTATION=rmw_zenoh_cpp)
     #                            or "ros2dds" (DDS-based ROS 2 behind zenoh-bridge-ros2dds)
+    distro: str = "jazzy"  # the planner's ROS 2: "jazzy" (also Kilted, Rolling) or "humble"
     domain_id: int = 0  # ROS_DOMAIN_ID (part of every rmw_zenoh key expression)
     namespace: str = ""  # rmw_zenoh: the service node's namespace (resolves relative
     #                      topics); ros2dds: the bridge's `namespace` setting (prefixes all)
@@ -36,9 +40,11 @@ class Ros2Settings:
     frame_id: str = "world"  # header.frame_id inputs must carry: ENU (REP 103), origin at
     #                          PX4's local origin. Bspline has no header and is taken as this.
     bspline_topic: str = "/planning/bspline"  # EGO-Planner / Fast-Planner B-splines in
-    bspline_type: str = "traj_utils/msg/Bspline"  # its ROS type name
-    bspline_msg: str = "ego-planner"  # "ego-planner", "ego-planner-swarm" (with drone_id)
-    #                                   or the path of the planner's Bspline.msg
+    bspline_type: str = "traj_utils/msg/Bspline"  # the planner's message: traj_utils/msg/
+    #   Bspline (ego-planner-swarm), ego_planner/msg/Bspline (EGO-Planner) or
+    #   plan_manage/msg/Bspline (Fast-Planner), each read in its upstream layout
+    bspline_msg: str = ""  # "" = bspline_type's upstream layout; else "ego-planner",
+    #   "ego-planner-swarm" (with drone_id), "fast-planner" or the path of a Bspline.msg
     path_topic: str = ""  # nav_msgs/Path in (stamped poses as samples); "" = off
     multidof_topic: str = ""  # trajectory_msgs/MultiDOFJointTrajectory in; "" = off
     pointcloud_topic: str = ""  # sensor_msgs/PointCloud2 occupancy map in; "" = off
@@ -57,6 +63,8 @@ def check(s: Ros2Settings) -> None:
 
     if s.layout not in LAYOUTS:
         fail("layout", f"must be one of {', '.join(LAYOUTS)}")
+    if s.distro not in DISTROS:
+        fail("distro", "must be humble or jazzy (jazzy also for Kilted and Rolling)")
     if not 0 <= s.domain_id <= 232:
         fail("domain_id", "must be a ROS domain id from 0 to 232")
     if not _NAMESPACE.fullmatch(s.namespace):
@@ -84,4 +92,5 @@ def check(s: Ros2Settings) -> None:
         try:
             bspline_definition(s.bspline_msg, s.bspline_type)
         except ValueError as exc:
-            raise ValueError(f"[ros2] bspline_msg: {exc}") from None
+            name = "bspline_msg" if s.bspline_msg else "bspline_type"
+            raise ValueError(f"[ros2] {name}: {exc}") from None

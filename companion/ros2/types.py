@@ -19,8 +19,11 @@ MULTIDOF = "trajectory_msgs/msg/MultiDOFJointTrajectory"
 POINTCLOUD = "sensor_msgs/msg/PointCloud2"
 STRING = "std_msgs/msg/String"
 
-# EGO-Planner's traj_utils/Bspline (Fast-Planner's bspline/Bspline has the same
-# fields) in ROS 2 syntax: ROS 1's `time` is builtin_interfaces/Time.
+# The planners' Bspline.msg in ROS 2 syntax (ROS 1's `time` is builtin_interfaces/Time).
+# EGO-Planner (ZJU-FAST-Lab/ego-planner, package ego_planner) and Fast-Planner
+# (HKUST-Aerial-Robotics/Fast-Planner, package plan_manage) share one layout;
+# ego-planner-swarm (package traj_utils; its ROS 2 port on Humble keeps it) adds a
+# leading drone_id.
 _EGO_PLANNER = """int32 order
 int64 traj_id
 builtin_interfaces/Time start_time
@@ -29,17 +32,35 @@ geometry_msgs/Point[] pos_pts
 float64[] yaw_pts
 float64 yaw_dt
 """
-#: Built-in Bspline definitions; ego-planner-swarm adds a leading drone_id.
-BSPLINE_MSGS = {"ego-planner": _EGO_PLANNER,
+#: Built-in Bspline layouts (``[ros2] bspline_msg``); anything else is a file path.
+BSPLINE_MSGS = {"ego-planner": _EGO_PLANNER, "fast-planner": _EGO_PLANNER,
                 "ego-planner-swarm": "int32 drone_id\n" + _EGO_PLANNER}
+#: The planners' real message types and their upstream layouts: ``[ros2]
+#: bspline_type`` chooses one (``bspline_msg = ""``, the default).
+BSPLINE_PRESETS = {"traj_utils/msg/Bspline": "ego-planner-swarm",
+                   "ego_planner/msg/Bspline": "ego-planner",
+                   "plan_manage/msg/Bspline": "fast-planner"}
 #: Fields the service reads from a Bspline, whatever else the definition has.
 BSPLINE_FIELDS = ("order", "start_time", "knots", "pos_pts")
+
+
+def bspline_layout(bspline_msg: str, typename: str) -> str:
+    """The layout name or .msg path in force: ``bspline_msg``, or when it is empty
+    the upstream layout of ``typename``; ``ValueError`` for an unknown type."""
+    if bspline_msg:
+        return bspline_msg
+    if typename not in BSPLINE_PRESETS:
+        raise ValueError(f"unknown Bspline type {typename!r}: the known ones are "
+                         f"{', '.join(BSPLINE_PRESETS)}; for another planner's message set "
+                         "bspline_msg to the path of its Bspline.msg")
+    return BSPLINE_PRESETS[typename]
 
 
 @functools.lru_cache(maxsize=8)
 def bspline_definition(bspline_msg: str, typename: str) -> str:
     """The ``.msg`` text of the configured Bspline (a built-in variant or a file);
     ``ValueError`` if it cannot be read or lacks a field the service needs."""
+    bspline_msg = bspline_layout(bspline_msg, typename)
     text = BSPLINE_MSGS.get(bspline_msg)
     if text is None:
         try:
@@ -70,9 +91,18 @@ def typestore(bspline_msg: str = "ego-planner", bspline_type: str = "traj_utils/
     return store
 
 
+#: What ROS 2 Humble's rmw_zenoh writes where later distros put the type hash
+#: (Humble's type support has no hashes: ros2/rmw_zenoh PR 388).
+HUMBLE_HASH = "TypeHashNotSupported"
+
+
 def type_hash(typename: str, bspline_msg: str = "ego-planner",
-              bspline_type: str = "traj_utils/msg/Bspline") -> str:
-    """The RIHS01 type hash, e.g. ``RIHS01_df66...`` for std_msgs/msg/String."""
+              bspline_type: str = "traj_utils/msg/Bspline", distro: str = "jazzy") -> str:
+    """The type hash of ``distro``'s rmw_zenoh: RIHS01 (REP 2011), e.g.
+    ``RIHS01_df66...`` for std_msgs/msg/String, on Jazzy and later; Humble's
+    :data:`HUMBLE_HASH`."""
+    if distro == "humble":
+        return HUMBLE_HASH
     return typestore(bspline_msg, bspline_type).hash_rihs01(typename)
 
 

@@ -1,0 +1,227 @@
+"""Foxglove for the ground station: the vehicle's flight served live over Foxglove's
+WebSocket protocol (``rota-gs foxglove``), the layout file that arranges it
+(``docs/foxglove/layout.json``), and a picture of a record's Foxglove channels drawn
+with matplotlib (``rota-gs foxglove --render``), for where Foxglove cannot run.
+
+The live server is a Zenoh client of the service like every ``rota-gs`` command; it
+turns what the service publishes (status, telemetry, re-timed results, the map)
+into the same topics as the flight record (:mod:`companion.foxglove`) and serves
+them on ``127.0.0.1:8765`` by default (this machine only: the protocol has no
+authentication). Foxglove: *Open connection*, *Foxglove WebSocket*,
+``ws://127.0.0.1:8765``.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove import layouts as fl
+
+from companion.foxglove import (
+    BODY_FRAME,
+    LATCHED,
+    MAP_FRAME,
+    TOPICS,
+    Out,
+    Scene,
+    schema_of,
+)
+from companion.gs.client import GroundStation, GroundStationError
+
+log = logging.getLogger("rota.gs.foxglove")
+
+DEFAULT_PORT = 8765
+
+
+class LiveView:
+    """A Foxglove WebSocket server showing one vehicle. Messages arrive on Zenoh's
+    threads and are turned into Foxglove's in one worker thread (a 1 MB map takes
+    tens of milliseconds), then logged to the server's channels."""
+
+    def __init__(self, gs: GroundStation, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
+                 name: str | None = None) -> None:
+        self.gs = gs
+        self.scene = Scene()
+        self.context = foxglove.Context()
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._last: dict[str, Out] = {}
+        self._q: queue.Queue[tuple[str, Any, float] | None] = queue.Queue(maxsize=2000)
+        self.dropped = 0
+        # every channel before any client: advertised to each on connecting
+        for topic, kind in TOPICS.items():
+            if topic != "/foxglove/log":  # events are in the status, not shown live yet
+                s = schema_of(kind)
+                self._channels[topic] = foxglove.Channel(
+                    topic, schema=foxglove.Schema(name=s.name, encoding=s.encoding,
+                                                  data=s.data),
+                    message_encoding=s.message_encoding, context=self.context)
+        self.server = foxglove.start_server(name=name or f"rota {gs.vehicle}", host=host,
+                                            port=port, context=self.context,
+                                            server_listener=_Listener(self._resend))
+        self._worker = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
+        self._worker.start()
+        try:
+            self.put("config", gs.config(), time.time())
+        except GroundStationError as exc:
+            log.warning("no configuration from the service (%s): no v_max on the plots", exc)
+        gs.on_message = self._on_message
+        self._map_sub = gs.session.declare_subscriber(gs.key("map"), self._on_map)
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    def put(self, channel: str, payload: Any, stamp: float) -> None:
+        """Queue one of the service's messages; never blocks (a full queue drops)."""
+        try:
+            self._q.put_nowait((channel, payload, stamp))
+        except queue.Full:
+            self.dropped += 1
+
+    def _on_message(self, name: str, obj: dict[str, Any]) -> None:
+        now = time.time()
+        if name == "telemetry" and obj.get("setpoint"):
+            sp = obj["setpoint"]
+            status = self.gs.status
+            self.put("setpoint", {"p": sp.get("position"), "v": sp.get("velocity"),
+                                  "a": sp.get("acceleration"), "yaw": sp.get("yaw_ned_deg"),
+                                  "source": status.get("trajectory_id")
+                                  or status.get("command") or ""}, now)
+        if name in ("telemetry", "retimed"):
+            self.put(name, obj, now)
+
+    def _on_map(self, sample: Any) -> None:
+        self.put("map", sample.payload.to_bytes(), time.time())
+
+    def _run(self) -> None:
+        while (item := self._q.get()) is not None:
+            channel, payload, stamp = item
+            try:
+                for out in self.scene.translate(channel, payload, stamp):
+                    self._log(out, stamp)
+            except Exception as exc:  # noqa: BLE001 - one bad message must not end the view
+                log.warning("cannot show a %s message: %s: %s", channel, type(exc).__name__,
+                            exc)
+
+    def _log(self, out: Out, stamp: float) -> None:
+        ch = self._channels[out.topic]
+        if out.topic in LATCHED:
+            self._last[out.topic] = out
+        ch.log(out.data, log_time=int(stamp * 1e9))
+
+    def _resend(self, topic: str) -> None:
+        """A client subscribed: send it the latched topic's last message again."""
+        out = self._last.get(topic)
+        if out is not None:
+            self._channels[topic].log(out.data, log_time=time.time_ns())
+
+    def close(self) -> None:
+        self.gs.on_message = None
+        self._map_sub.undeclare()
+        self._q.put(None)
+        self._worker.join(5)
+        self.server.stop()
+
+
+class _Listener(foxglove.ServerListener):
+    """Foxglove's server callbacks (on its own threads): a new subscription to a
+    latched topic gets its last message again."""
+
+    def __init__(self, resend: Callable[[str], None]) -> None:
+        self._resend = resend
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:  # noqa: ARG002
+        if channel.topic in LATCHED:
+            threading.Thread(target=self._resend, args=(channel.topic,), daemon=True).start()
+
+
+def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
+          port: int) -> None:
+    """``rota-gs foxglove``: serve until Ctrl-C."""
+    gs = make_station(vehicle)
+    view = LiveView(gs, host, port)
+    print(f"Foxglove WebSocket server on ws://{host}:{view.port} for vehicle {vehicle} "
+          "(Foxglove: Open connection, Foxglove WebSocket; layout: docs/foxglove/layout.json)."
+          " Ctrl-C ends.", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        view.close()
+        gs.close()
+
+
+# ------------------------------------------------------------------ layout
+def layout() -> fl.Layout:
+    """The Foxglove layout: the 3D scene following the vehicle, the plots of speed
+    against its limits and of the tracking error, and the event log."""
+    scene_topics = ("/foxglove/map", "/foxglove/plan", "/foxglove/body")
+    topics: dict[str, Any] = {t: fl.BaseRendererSceneUpdateTopicSettings(visible=True)
+                              for t in scene_topics}
+    topics["/foxglove/setpoint"] = fl.BaseRendererPoseTopicSettings(
+        visible=True, type="arrow", arrow_scale=(0.5, 0.08, 0.08), color="#1f77b4")
+    topics["/foxglove/vehicle"] = fl.BaseRendererPoseTopicSettings(visible=False)
+    three_d = fl.ThreeDeePanel(title="Flight (map frame, ENU)", config=fl.ThreeDeeConfig(
+        follow_tf=BODY_FRAME, fixed_frame=MAP_FRAME, follow_mode="follow-position",
+        topics=topics))
+
+    def series(path: str, label: str, color: str, style: str = "solid") -> fl.PlotSeries:
+        return fl.PlotSeries(value=path, label=label, color=color, line_style=style,
+                             enabled=True, timestamp_method="receiveTime")
+
+    speed = fl.PlotPanel(title="Speed (m/s)", config=fl.PlotConfig(paths=[
+        series("/plot/command.speed", "commanded", "#1f77b4"),
+        series("/plot/vehicle.speed", "reported (PX4)", "#222222"),
+        series("/plot/command.v_max", "v_max", "#d62728"),
+        series("/plot/command.chance_limit", "chance-constrained limit", "#9400d3", "dashed"),
+    ], show_legend=True))
+    tracking = fl.PlotPanel(title="Tracking error (m)", config=fl.PlotConfig(paths=[
+        series("/plot/vehicle.tracking_error", "tracking error", "#222222"),
+        series("/plot/vehicle.brake_threshold", "brake threshold", "#d62728", "dashed"),
+    ], show_legend=True))
+    logs = fl.LogPanel(title="Events", config=fl.LogConfig(topic_to_render="/foxglove/log"))
+    right = fl.SplitContainer(direction="column", items=[
+        fl.SplitItem(proportion=2, content=speed), fl.SplitItem(proportion=1, content=tracking),
+        fl.SplitItem(proportion=1, content=logs)])
+    return fl.Layout(content=fl.SplitContainer(direction="row", items=[
+        fl.SplitItem(proportion=3, content=three_d), fl.SplitItem(proportion=2, content=right)]))
+
+
+def layout_json() -> str:
+    """:func:`layout` as the JSON Foxglove imports (``docs/foxglove/layout.json``)."""
+    import json
+
+    return json.dumps(json.loads(layout().to_json()), indent=1) + "\n"
+
+
+# ------------------------------------------------------------------ render
+def decoded(paths: Iterable[str | Path]) -> dict[str, list[tuple[float, Any]]]:
+    """The Foxglove channels of flight records, each message decoded by its own
+    schema: protobuf ones from the schema's descriptors, JSON ones as JSON."""
+    import json
+
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from companion.record import read_raw
+
+    factory, decoders = DecoderFactory(), {}
+    out: dict[str, list[tuple[float, Any]]] = {}
+    for schema, channel, message in read_raw(paths):
+        if schema is None or schema.name.startswith("rota/"):
+            continue  # the service's own channels
+        if channel.message_encoding == "protobuf":
+            dec = decoders.setdefault(channel.id, factory.decoder_for("protobuf", schema))
+            obj = dec(message.data)
+        else:
+            obj = json.loads(message.data)
+        out.setdefault(channel.topic, []).append((message.log_time / 1e9, obj))
+    return out
