@@ -28,6 +28,7 @@ from rota.jerkproblem import (
     REST_END,
     REST_START,
     Layout,
+    beta_at,
     limit_ratios,
     make_points,
     solve,
@@ -103,10 +104,14 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
     steps = 0
     seconds = 0.0
     worst = (0.0, 0.0, 0.0)
+    js = None
     for _ in range(MAX_ROUNDS):
         pts = make_points(inp, tau, vlim, PARTS, extra)
-        at = tau[pts.interval] + pts.frac * lay.h
-        bbar = np.interp(at, tau, base.beta)
+        if js is None:  # from the unlimited optimum, then from the last solution
+            at = tau[pts.interval] + pts.frac * lay.h
+            bbar = np.interp(at, tau, base.beta)
+        else:
+            bbar = np.maximum(beta_at(lay, pts, js.beta, js.acc), 0.0)
         js = solve(lay, pts, a_max, j_max, bbar, inp.smoothness, SOLVE_TOL)
         steps += js.steps
         seconds += js.seconds

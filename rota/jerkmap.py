@@ -40,15 +40,24 @@ SERIES = 1e-3
 NEWTON_STEPS = 30
 
 
+#: Relative distance (to the duration) within which a point is on a breakpoint.
+SNAP = 1e-11
+
+
 def derivatives(traj: Trajectory, tau: ArrayLike, left: bool = False
                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(sigma', sigma'', sigma''')`` at ``tau`` (clamped to the domain), each
-    ``(n, 3)``. At a breakpoint the piece after it (``left``: before it)."""
+    ``(n, 3)``. At a breakpoint (within :data:`SNAP`) the piece after it
+    (``left``: before it)."""
     breaks, coefs = traj.pieces
     t0, t1 = traj.domain
     x = np.clip(np.atleast_1d(np.asarray(tau, dtype=float)), t0, t1)
     m = coefs.shape[0]
-    j = np.searchsorted(breaks, x, side="left" if left else "right") - 1
+    # Within SNAP of a breakpoint counts as on it: a grid node computed as
+    # t0 + i h may round past a breakpoint it coincides with.
+    snap = SNAP * max(t1 - t0, 1.0)
+    j = (np.searchsorted(breaks, x - snap, side="left") if left
+         else np.searchsorted(breaks, x + snap, side="right")) - 1
     j = np.clip(j, 0, m - 1)
     s = (x - breaks[j])[:, None]
     c = coefs[j]  # (n, k + 1, 3)
@@ -121,6 +130,7 @@ class JerkTimeMap:
     rest_end: bool = False
     t: FloatArray = field(init=False)
     alpha: FloatArray = field(init=False)
+    kappa: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
         tau = np.ascontiguousarray(self.tau, dtype=float)
@@ -132,7 +142,10 @@ class JerkTimeMap:
             beta[0], acc[0] = 0.0, 0.0
         if self.rest_end:
             beta[-1], acc[-1] = 0.0, 0.0
-        kappa = np.diff(acc) / h
+        # The end of every interval reaches beta_{i+1} exactly (the solver's
+        # equalities hold to its tolerance only): kappa from beta, so tau_dot is
+        # continuous at the nodes; tau_ddot there is continuous to that tolerance.
+        kappa = (np.diff(beta) - 2.0 * h * acc[:-1]) / (h * h)
         with np.errstate(divide="ignore"):
             dt = _time_to(acc[:-1], beta[:-1], beta[1:], kappa, np.full(n, h))
             if self.rest_start:
@@ -142,6 +155,7 @@ class JerkTimeMap:
         object.__setattr__(self, "tau", tau)
         object.__setattr__(self, "beta", beta)
         object.__setattr__(self, "acc", acc)
+        object.__setattr__(self, "kappa", kappa)
         object.__setattr__(self, "t", np.concatenate([[0.0], np.cumsum(dt)]))
         object.__setattr__(self, "alpha", np.diff(beta) / (2 * h))
 
@@ -165,7 +179,7 @@ class JerkTimeMap:
         s = tq - self.t[i]
         h = self.h
         a0 = self.acc[i]
-        kappa = (self.acc[i + 1] - a0) / h
+        kappa = self.kappa[i]
         u, du = _advance(a0, np.sqrt(self.beta[i]), kappa, s)
         u = np.clip(u, 0.0, h)
         du = np.maximum(du, 0.0)
@@ -193,7 +207,7 @@ class JerkTimeMap:
         i = np.clip(np.searchsorted(self.tau, x, side="right") - 1, 0, n - 1)
         d = x - self.tau[i]
         a0 = self.acc[i]
-        kappa = (self.acc[i + 1] - a0) / h
+        kappa = self.kappa[i]
         b_at = self.beta[i] + 2 * a0 * d + kappa * d * d
         with np.errstate(divide="ignore", invalid="ignore"):
             s = np.where(d > 0, _time_to(a0, self.beta[i], b_at, kappa, d), 0.0)

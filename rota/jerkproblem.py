@@ -50,14 +50,14 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Check points per interval (uniform), plus the path's breakpoints.
-PARTS = 8
+PARTS = 4
 #: The audit probes this many times denser than the check points.
 AUDIT_FACTOR = 4
 #: A limit may be exceeded by this share at most (audit, and the result's check).
 LIMIT_TOL = 1e-3
 #: Successive convexification stops when the duration changes less than this
 #: (relative), or after :data:`MAX_STEPS` solves.
-STEP_TOL = 1e-6
+STEP_TOL = 1e-5
 MAX_STEPS = 40
 #: Rounds of constraint generation after the audit.
 MAX_ROUNDS = 4
@@ -94,16 +94,21 @@ def make_points(inp: RetimeInput, tau: FloatArray, vlim: FloatArray, parts: int,
     inner = edges[(edges > tau[0]) & (edges < tau[-1])]
     bi = np.clip(np.searchsorted(tau, inner, side="right") - 1, 0, n - 1)
     bf = (inner - tau[bi]) / h
-    keep = (bf > 1e-12) & (bf < 1 - 1e-12)
+    keep = (bf > 1e-9) & (bf < 1 - 1e-9)  # else it is on a node
     bi, bf = bi[keep], bf[keep]
     left = np.concatenate([fr == 1.0, np.ones(len(bi), bool), np.zeros(len(bi), bool)])
+    # Nodes and breakpoints are evaluated at their own numbers (tau_i + f h may
+    # round to the other side of a breakpoint, where the third derivative jumps).
+    at = np.concatenate([np.where(fr == 1.0, tau[np.minimum(iv + 1, n)], tau[iv] + fr * h),
+                         inner[keep], inner[keep]])
     iv = np.concatenate([iv, bi, bi])
     fr = np.concatenate([fr, bf, bf])
     if extra is not None and len(extra[0]):
         iv = np.concatenate([iv, extra[0]])
         fr = np.concatenate([fr, extra[1]])
         left = np.concatenate([left, extra[1] == 1.0])
-    at = tau[iv] + fr * h
+        at = np.concatenate([at, np.where(extra[1] == 1.0, tau[extra[0] + 1],
+                                          tau[extra[0]] + extra[1] * h)])
     r1, r2, r3 = derivatives(inp.trajectory, at, left=False)
     l1, l2, l3 = derivatives(inp.trajectory, at, left=True)
     lf = left[:, None]
@@ -190,10 +195,11 @@ class _Rows:
 
 
 def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
-              bbar: FloatArray, smoothness: float
+              bbar: FloatArray, smoothness: float, jrow: NDArray[np.bool_]
               ) -> tuple[sp.csc_matrix, FloatArray, sp.csc_matrix, FloatArray, list, int]:
     """Clarabel's ``(P, q, A, b, cones)`` of one convexified problem, and the
-    column of the first slack."""
+    column of the first slack. ``jrow``: the points with jerk rows (fixed for a
+    round, so every step has the same sparsity)."""
     nb = lay.nb
     n = nb - 1
     h = lay.h
@@ -203,7 +209,6 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
     cols, cb, ca, ck = _maps(lay, pts)
     rest_mask, rcol, rb, ra, rg = _rest(lay, pts)
     is_normal = ~rest_mask
-    jrow = is_normal & (bbar > 1e-12 * max(float(bbar.max(initial=0.0)), 1e-300))
     n_s = int(jrow.sum())
     t0 = 2 * nb
     s0 = t0 + n_t
@@ -250,7 +255,7 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
         le.add(c3, -acc, np.ones(len(c3)))
     # Jerk rows (normal points): sgn L w + beta - e bmed <= 3 bbar, w = 2 bbar^1.5 / J.
     jc = cols[jrow]
-    bb = bbar[jrow]
+    bb = np.maximum(bbar[jrow], 1e-12 * max(float(bbar.max(initial=0.0)), 1e-300))
     bmed = float(np.median(bb)) if n_s else 1.0
     slack = (s0 + np.arange(n_s))[:, None]
     for ax in range(3):
@@ -340,7 +345,7 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
     return P, q, A, b, cones, s0
 
 
-def _beta_at(lay: Layout, pts: Points, beta: FloatArray, acc: FloatArray) -> FloatArray:
+def beta_at(lay: Layout, pts: Points, beta: FloatArray, acc: FloatArray) -> FloatArray:
     """Beta of the solution at the points (normal and rest intervals)."""
     cols, cb, _, _ = _maps(lay, pts)
     x = np.concatenate([beta, acc])
@@ -397,10 +402,22 @@ def solve(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
     beta = acc = None
     status, slack = "not run", math.inf
     steps = 0
+    rest_mask = _rest(lay, pts)[0]
+    jrow = ~rest_mask & (bbar > 1e-12 * max(float(bbar.max(initial=0.0)), 1e-300))
+    solver = None
+    pattern: tuple[FloatArray, FloatArray] | None = None
     for steps in range(1, MAX_STEPS + 1):  # noqa: B007 - the count is reported
-        P, q, A, b, cones, s0 = _assemble(lay, pts, a_max, j_max, bbar, smoothness)
+        P, q, A, b, cones, s0 = _assemble(lay, pts, a_max, j_max, bbar, smoothness, jrow)
         try:
-            sol = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
+            # Same sparsity every step: update the data, keep the symbolic work.
+            if (solver is not None and pattern is not None
+                    and np.array_equal(pattern[0], A.indptr)
+                    and np.array_equal(pattern[1], A.indices)):
+                solver.update(q=q, A=A.data, b=b)
+            else:
+                solver = clarabel.DefaultSolver(P, q, A, b, cones, settings)
+                pattern = (A.indptr.copy(), A.indices.copy())
+            sol = solver.solve()
         except Exception as exc:  # noqa: BLE001 - the solver must never take the caller down
             return JerkSolve(None, None, steps, f"SolverError: {exc}", math.inf,
                              time.perf_counter() - start)
@@ -413,7 +430,7 @@ def solve(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
         n_s = len(q) - s0 - (s0 - 2 * nb)
         slack = float(np.max(x[s0:s0 + n_s], initial=0.0))
         obj = float(q[2 * nb:s0] @ x[2 * nb:s0])
-        bbar = np.maximum(_beta_at(lay, pts, beta, acc), 0.0)
+        bbar = np.maximum(beta_at(lay, pts, beta, acc), 0.0)
         if slack <= 1e-7 and abs(last - obj) <= STEP_TOL * obj:
             break
         last = obj if slack <= 1e-7 else math.inf
@@ -426,7 +443,7 @@ def replace_settings(tol: float):  # noqa: ANN201 - a SolverSettings
     """Clarabel settings for the convexified problems (presolve off: rows stay)."""
     from rota.problem import SolverSettings  # noqa: PLC0415
 
-    return SolverSettings(method="clarabel", tol=tol)
+    return SolverSettings(method="clarabel", tol=tol, presolve=False)
 
 
-__all__ = ["JerkSolve", "Layout", "Points", "limit_ratios", "make_points", "solve"]
+__all__ = ["JerkSolve", "Layout", "Points", "beta_at", "limit_ratios", "make_points", "solve"]
