@@ -40,6 +40,12 @@ from rota.timemap import TimeMap
 
 FloatArray = NDArray[np.float64]
 
+#: The jerk-limited problem's grid is the re-time's grid cut in this many parts:
+#: the jerk's shape can only change at nodes. Measured on random 4-waypoint
+#: B-splines and quintic polynomials (v 2, a 3, j 6, dtau 0.1) against the same
+#: problem on a 16 times finer grid: 1 part 2.5-4.6 % longer, 2 parts 0.9-1.4 %,
+#: 4 parts 0.2-0.45 %.
+REFINE = 4
 #: The convexified problems are solved to this tolerance (Clarabel).
 SOLVE_TOL = 1e-8
 #: A start acceleration along the path below this (tau_ddot) counts as none.
@@ -57,8 +63,7 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
     a_max = inp.limits.a_max_vec
     base = retime(replace(inp, limits=replace(inp.limits, j_max=None)))
     traj = inp.trajectory
-    tau = base.timemap.tau
-    vlim = base.speed_limits
+    tau, vlim = refine_grid(base.timemap.tau, base.speed_limits, REFINE)
     extras = dict(base.extras)
     extras["unlimited_duration"] = base.duration if base.ok else math.nan
 
@@ -109,7 +114,7 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
         pts = make_points(inp, tau, vlim, PARTS, extra)
         if js is None:  # from the unlimited optimum, then from the last solution
             at = tau[pts.interval] + pts.frac * lay.h
-            bbar = np.interp(at, tau, base.beta)
+            bbar = np.interp(at, base.tau, base.beta)
         else:
             bbar = np.maximum(beta_at(lay, pts, js.beta, js.acc), 0.0)
         js = solve(lay, pts, a_max, j_max, bbar, inp.smoothness, SOLVE_TOL)
@@ -118,9 +123,10 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
         stats = SolverStats("Solved" if js.beta is not None else js.status, steps, seconds,
                             seconds, math.nan, "clarabel-scp")
         if js.beta is None or js.acc is None:
+            why = ("the jerk bound cannot be met from this start state with these limits"
+                   if "Infeasible" in js.status else "the solver did not finish")
             return fallback(f"the jerk-limited problem could not be solved (Clarabel: "
-                            f"{js.status} after {js.steps} convexified solves): the jerk "
-                            "bound cannot be met from this start state with these limits",
+                            f"{js.status} after {js.steps} convexified solves): {why}",
                             stats=stats)
         if js.slack > 1e-7:
             return fallback("the jerk bound cannot be met from this start state with these "
@@ -147,6 +153,17 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
     stats = replace(stats, objective=timemap.duration)
     extras.update(jerk_steps=steps, jerk_ratio=worst[2], unlimited_duration=base.duration)
     return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, base.warnings)
+
+
+def refine_grid(tau: FloatArray, vlim: FloatArray, parts: int
+                ) -> tuple[FloatArray, FloatArray]:
+    """The grid ``tau`` with every interval cut in ``parts``, and the speed limits
+    there (their squares interpolated, as between check points)."""
+    n = len(tau) - 1
+    fine = np.linspace(tau[0], tau[-1], parts * n + 1)
+    fine[::parts] = tau
+    lim2 = np.interp(fine, tau, np.where(np.isfinite(vlim), vlim**2, 1e300))
+    return fine, np.where(lim2 >= 1e299, np.inf, np.sqrt(lim2))
 
 
 def _acceleration_jump(inp: RetimeInput) -> str | None:

@@ -253,10 +253,9 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
         acc = (pts.d1[m, ax][:, None] * ca[m] + pts.d2[m, ax][:, None] * cb[m]) / a_max[ax]
         le.add(c3, acc, np.ones(len(c3)))
         le.add(c3, -acc, np.ones(len(c3)))
-    # Jerk rows (normal points): sgn L w + beta - e bmed <= 3 bbar, w = 2 bbar^1.5 / J.
+    # Jerk rows (normal points): sgn L w + beta - e bbar <= 3 bbar, w = 2 bbar^1.5 / J.
     jc = cols[jrow]
     bb = np.maximum(bbar[jrow], 1e-12 * max(float(bbar.max(initial=0.0)), 1e-300))
-    bmed = float(np.median(bb)) if n_s else 1.0
     slack = (s0 + np.arange(n_s))[:, None]
     for ax in range(3):
         w = 2 * bb**1.5 / j_max[ax]
@@ -264,7 +263,7 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
              + pts.d1[jrow, ax][:, None] * ck[jrow])
         for sgn in (1.0, -1.0):
             vals = sgn * L * w[:, None] + cb[jrow]
-            le.add(np.hstack([jc, slack]), np.hstack([vals, np.full((n_s, 1), -bmed)]),
+            le.add(np.hstack([jc, slack]), np.hstack([vals, -bb[:, None]]),
                    3.0 * bb)
     le.add(slack, -np.ones((n_s, 1)), np.zeros(n_s))  # e >= 0
     # Rest intervals: bounds on c.
@@ -315,8 +314,8 @@ def _assemble(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
     for i in rest_iv:
         cones_for(k, [1 if lay.kind[i] == REST_START else n - 1], [1.0], 3 * h)
         k += 1
-    # Slack price: PENALTY times the marginal time of beta (per bmed) at bmed.
-    q[s0:s0 + n_s] = PENALTY * (h / PARTS) * 0.5 / math.sqrt(bmed)
+    # Slack price: PENALTY times the marginal time of beta (per bbar) at the point.
+    q[s0:s0 + n_s] = PENALTY * (h / PARTS) * 0.5 / np.sqrt(bb)
     # Smoothness: lambda * int tau_ddot^2 dtau.
     pr, pc, pv = [], [], []
     lam = smoothness
