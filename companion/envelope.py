@@ -26,6 +26,7 @@ from companion.config import Config, ConfigError
 RULES: dict[tuple[str, str], Any] = {
     ("limits", "v_max"): "max",
     ("limits", "a_max"): "max",
+    ("limits", "j_max"): "timeout",  # the file's 0 (none): any limit is tighter
     ("limits", "smoothness"): ("range", 0.0, 10.0),
     ("limits", "dtau"): ("range", None, 1.0),  # coarser only: a finer grid costs more
     ("limits", "max_solve_s"): "max",
@@ -103,6 +104,7 @@ def check_change(file: Config, new: Config, changes: dict[str, dict[str, Any]]) 
 PLAUSIBLE = {
     ("limits", "v_max"): 30.0,  # m/s
     ("limits", "a_max"): 30.0,  # m/s^2 per axis
+    ("limits", "j_max"): 1000.0,  # m/s^3 per axis
     ("limits", "max_solve_s"): 30.0,
     ("safety", "max_message_age_s"): 60.0,
     ("safety", "max_input_speed"): 60.0,

@@ -117,7 +117,7 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
             bbar = np.interp(at, base.tau, base.beta)
         else:
             bbar = np.maximum(beta_at(lay, pts, js.beta, js.acc), 0.0)
-        js = solve(lay, pts, a_max, j_max, bbar, inp.smoothness, SOLVE_TOL)
+        js = solve(lay, pts, a_max, j_max, bbar, inp.smoothness, SOLVE_TOL, inp.solver)
         steps += js.steps
         seconds += js.seconds
         stats = SolverStats("Solved" if js.beta is not None else js.status, steps, seconds,

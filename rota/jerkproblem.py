@@ -43,14 +43,14 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from rota.jerkmap import derivatives
-from rota.problem import RetimeInput
+from rota.problem import RetimeInput, SolverSettings
 from rota.solver import clarabel_settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Check points per interval (uniform), plus the path's breakpoints.
-PARTS = 4
+PARTS = 2
 #: The audit probes this many times denser than the check points.
 AUDIT_FACTOR = 4
 #: A limit may be exceeded by this share at most (audit, and the result's check).
@@ -393,9 +393,9 @@ class JerkSolve:
 
 
 def solve(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
-          bbar: FloatArray, smoothness: float, tol: float) -> JerkSolve:
+          bbar: FloatArray, smoothness: float, tol: float, given: SolverSettings) -> JerkSolve:
     """Successive convexification from ``bbar`` (beta at the points)."""
-    settings = clarabel_settings(replace_settings(tol))
+    settings = clarabel_settings(replace_settings(tol, given))
     start = time.perf_counter()
     last = math.inf
     beta = acc = None
@@ -438,11 +438,12 @@ def solve(lay: Layout, pts: Points, a_max: FloatArray, j_max: FloatArray,
                      time.perf_counter() - start)
 
 
-def replace_settings(tol: float):  # noqa: ANN201 - a SolverSettings
-    """Clarabel settings for the convexified problems (presolve off: rows stay)."""
-    from rota.problem import SolverSettings  # noqa: PLC0415
-
-    return SolverSettings(method="clarabel", tol=tol, presolve=False)
+def replace_settings(tol: float, given: SolverSettings) -> SolverSettings:
+    """Clarabel settings for the convexified problems: ``tol``, presolve off (the
+    steps update the data of the same rows); the time and iteration limits of
+    ``given`` (the input's)."""
+    return SolverSettings(method="clarabel", tol=tol, presolve=False,
+                          time_limit=given.time_limit, max_iter=given.max_iter)
 
 
 __all__ = ["JerkSolve", "Layout", "Points", "beta_at", "limit_ratios", "make_points", "solve"]

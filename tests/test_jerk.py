@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rota import InputError, Limits, RetimeInput, SampledTrajectory, retime
+from rota import InputError, Limits, RetimeInput, SampledTrajectory, SolverSettings, retime
 from rota.trajectory import PolynomialTrajectory, Window
 from tests.kinematics import measured_kinematics
 from tests.strategies import bspline, polynomial, sampled
@@ -102,7 +102,7 @@ def test_same_problem_on_an_eight_times_finer_grid():
         traj = bspline(seed, n, span)
         coarse = retime(RetimeInput(trajectory=traj, limits=LIMITS, smoothness=0.0))
         fine = retime(RetimeInput(trajectory=traj, limits=LIMITS, smoothness=0.0,
-                                  dtau=0.1 / 8))
+                                  dtau=0.1 / 8, solver=SolverSettings(time_limit=300.0)))
         assert coarse.ok and fine.ok, (coarse.message, fine.message)
         assert abs(coarse.duration / fine.duration - 1) <= 0.005
         assert coarse.duration >= coarse.extras["unlimited_duration"]
@@ -130,3 +130,35 @@ def test_per_axis_jerk_limits():
     assert limits.j_max == (6.0, 6.0, 2.0)
     assert Limits(2.0, 3.0, 4).j_max == (4.0, 4.0, 4.0)
     assert Limits(2.0, 3.0).j_max is None
+
+
+def test_config_carries_the_jerk_limit_tighten_only():
+    from companion.config import ConfigError, from_dict
+    from companion.envelope import check_change
+
+    assert from_dict({}).rota_limits().j_max is None  # default: no jerk limit
+    file = from_dict({"limits": {"j_max": 4.0}})
+    assert file.rota_limits().j_max == (4.0, 4.0, 4.0)
+    with pytest.raises(ConfigError, match=r"\[limits\] j_max"):
+        from_dict({"limits": {"j_max": -1.0}})
+    for value, ok in ((2.0, True), (4.0, True), (8.0, False), (0.0, False)):
+        new = from_dict({"limits": {"j_max": value}})
+        if ok:
+            check_change(file, new, {"limits": {"j_max": value}})
+        else:
+            with pytest.raises(ConfigError, match=r"\[limits\] j_max: .* refused"):
+                check_change(file, new, {"limits": {"j_max": value}})
+    # None in the file: setting one is tightening.
+    check_change(from_dict({}), file, {"limits": {"j_max": 4.0}})
+
+
+def test_a_jerk_limited_result_survives_its_message():
+    from rota.schema import TrajectoryMessage, result_from_dict, result_to_dict
+
+    traj = PATHS["bspline"]()
+    result = retime(RetimeInput(trajectory=traj, limits=LIMITS, smoothness=0.0))
+    msg = TrajectoryMessage(id="j", frame="ENU", trajectory=traj)
+    back, _ = result_from_dict(result_to_dict(result, msg))
+    t = np.linspace(0.0, result.duration, 200)
+    assert back.duration == pytest.approx(result.duration, rel=1e-12)
+    assert np.allclose(back.sample(t).position, result.sample(t).position, atol=1e-9)
