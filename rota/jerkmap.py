@@ -155,6 +155,8 @@ class JerkTimeMap:
         object.__setattr__(self, "tau", tau)
         object.__setattr__(self, "beta", beta)
         object.__setattr__(self, "acc", acc)
+        object.__setattr__(self, "rest_start", bool(self.rest_start))
+        object.__setattr__(self, "rest_end", bool(self.rest_end))
         object.__setattr__(self, "kappa", kappa)
         object.__setattr__(self, "t", np.concatenate([[0.0], np.cumsum(dt)]))
         object.__setattr__(self, "alpha", np.diff(beta) / (2 * h))

@@ -164,7 +164,32 @@ def test_a_jerk_limited_result_survives_its_message():
     traj = PATHS["bspline"]()
     result = retime(RetimeInput(trajectory=traj, limits=LIMITS, smoothness=0.0))
     msg = TrajectoryMessage(id="j", frame="ENU", trajectory=traj)
-    back, _ = result_from_dict(result_to_dict(result, msg))
+    import json
+
+    back, _ = result_from_dict(json.loads(json.dumps(result_to_dict(result, msg))))
     t = np.linspace(0.0, result.duration, 200)
     assert back.duration == pytest.approx(result.duration, rel=1e-12)
     assert np.allclose(back.sample(t).position, result.sample(t).position, atol=1e-9)
+
+
+def test_rota_retime_takes_a_jerk_limit(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from rota.cli import example_path
+    from rota.schema import result_from_dict
+
+    out = tmp_path / "r.json"
+    r = subprocess.run([sys.executable, "-m", "rota.cli", "retime", str(example_path()),
+                        "-o", str(out), "--j-max", "4"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    assert d["status"] == "optimal" and "acc" in d
+    result, _ = result_from_dict(d)
+    assert fd_jerk(result).max() <= 4.0 * (1 + FD_TOL)
+    bad = subprocess.run([sys.executable, "-m", "rota.cli", "retime", str(example_path()),
+                          "-o", str(out), "--j-max", "-1"], capture_output=True, text=True,
+                         timeout=300)
+    assert bad.returncode == 2 and "j_max" in bad.stderr
