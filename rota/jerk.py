@@ -47,6 +47,8 @@ FloatArray = NDArray[np.float64]
 #: than dtau 0.1: steps of 0.1 s 2.5-4.6 % longer, 0.05 s 0.9-1.4 %, 0.025 s
 #: 0.2-0.45 %.
 JERK_DTAU = 0.025
+#: A start on a given acceleration may make the grid up to this many times finer.
+MAX_FINER = 4
 #: The convexified problems are solved to this tolerance (Clarabel).
 SOLVE_TOL = 1e-8
 #: A start acceleration along the path below this (tau_ddot) counts as none.
@@ -55,17 +57,24 @@ REST_ACC = 1e-9
 C2_TOL = 1e-6
 
 
-def retime_jerk(inp: RetimeInput) -> RetimeResult:
-    """Re-time ``inp`` with its jerk bound ``inp.limits.j_max`` (see the module)."""
+def retime_jerk(inp: RetimeInput, finer: int = 1) -> RetimeResult:
+    """Re-time ``inp`` with its jerk bound ``inp.limits.j_max`` (see the module).
+
+    A start on a given acceleration (a replan) pins the first interval's state:
+    its ``tau_ddot`` is linear, which may not follow the jerk a moving vehicle
+    needs (it may be about to switch): then the grid is made ``finer`` (2, then
+    4 times; measured: mid-ramp replans of the tests' B-spline failed at the
+    0.025 s grid and succeed at 0.0125 s)."""
     from rota.retime import Infeasible, _boundary, retime  # noqa: PLC0415 - circular
 
     j_max = inp.limits.j_max_vec
     assert j_max is not None
     a_max = inp.limits.a_max_vec
+    inp = _hovering(inp)
     base = retime(replace(inp, limits=replace(inp.limits, j_max=None)))
     traj = inp.trajectory
     step = float(base.timemap.tau[1] - base.timemap.tau[0])
-    parts = max(1, math.ceil(step / JERK_DTAU - 1e-9))
+    parts = max(1, math.ceil(step / JERK_DTAU - 1e-9)) * finer
     tau, vlim = refine_grid(base.timemap.tau, base.speed_limits, parts)
     extras = dict(base.extras)
     extras["unlimited_duration"] = base.duration if base.ok else math.nan
@@ -125,6 +134,9 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
         seconds += js.seconds
         stats = SolverStats("Solved" if js.beta is not None else js.status, steps, seconds,
                             seconds, math.nan, "clarabel-scp")
+        pinned = acc_start is not None and kind[0] == NORMAL
+        if pinned and finer < MAX_FINER and (js.slack > 1e-7 or "Infeasible" in js.status):
+            return retime_jerk(inp, 2 * finer)
         if js.beta is None or js.acc is None:
             why = ("the jerk bound cannot be met from this start state with these limits"
                    if "Infeasible" in js.status else "the solver did not finish")
@@ -154,7 +166,8 @@ def retime_jerk(inp: RetimeInput) -> RetimeResult:
         return fallback("the jerk-limited time mapping stops on the way (infinite duration)",
                         stats=stats)
     stats = replace(stats, objective=timemap.duration)
-    extras.update(jerk_steps=steps, jerk_ratio=worst[2], unlimited_duration=base.duration)
+    extras.update(jerk_steps=steps, jerk_ratio=worst[2], unlimited_duration=base.duration,
+                  jerk_finer=finer)
     return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, base.warnings)
 
 
@@ -167,6 +180,21 @@ def refine_grid(tau: FloatArray, vlim: FloatArray, parts: int
     fine[::parts] = tau
     lim2 = np.interp(fine, tau, np.where(np.isfinite(vlim), vlim**2, 1e300))
     return fine, np.where(lim2 >= 1e299, np.inf, np.sqrt(lim2))
+
+
+def _hovering(inp: RetimeInput) -> RetimeInput:
+    """``inp`` without its start acceleration when the vehicle is at rest and the
+    acceleration does not push it along the path (a hover): the jerk-limited start
+    from rest (a rest interval) begins at zero acceleration anyway, and the
+    unlimited re-time refuses a start at rest that cannot move."""
+    a = inp.start_acceleration
+    if a is None or float(np.linalg.norm(inp.start_velocity)) > 0.0:
+        return inp
+    d1 = derivatives(inp.trajectory, inp.trajectory.domain[:1])[0][0]
+    s2 = float(d1 @ d1)
+    if s2 <= STILL**2 or float(a @ d1) / s2 <= REST_ACC:
+        return replace(inp, start_acceleration=None)
+    return inp
 
 
 def _acceleration_jump(inp: RetimeInput) -> str | None:
