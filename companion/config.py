@@ -90,6 +90,7 @@ class InputsSection:
 class LimitsSection:
     v_max: float = 2.0  # speed limit, m/s
     a_max: tuple[float, float, float] = (2.0, 2.0, 1.5)  # per axis (x, y, z), m/s^2
+    j_max: float = 0.0  # jerk limit per axis, m/s^3 (PX4's MPC_JERK_AUTO: 4); 0: none
     smoothness: float = 0.5  # lambda of the paper's Eq. 10
     dtau: float = 0.05  # re-timing grid step, s of trajectory time
     max_solve_s: float = 2.0  # a re-time slower than this is abandoned
@@ -145,7 +146,7 @@ class Config:
 
     # ----------------------------------------------------------- derived objects
     def rota_limits(self) -> Limits:
-        return Limits(self.limits.v_max, self.limits.a_max)
+        return Limits(self.limits.v_max, self.limits.a_max, self.limits.j_max or None)
 
     def uncertainty_model(self) -> UncertaintyModel:
         u = self.uncertainty
@@ -360,6 +361,8 @@ def validate(cfg: Config) -> None:
         raise ConfigError("[safety] planner_timeout_s: must be >= 0 (0 disables it)")
     if cfg.limits.smoothness < 0:
         raise ConfigError("[limits] smoothness: must be >= 0")
+    if not cfg.limits.j_max >= 0:
+        raise ConfigError("[limits] j_max: must be >= 0 (0: no jerk limit)")
     if cfg.zenoh.mode not in ("peer", "client", "router"):
         raise ConfigError(f"[zenoh] mode: must be peer, client or router, got {cfg.zenoh.mode!r}")
     if not -20 <= cfg.service.nice <= 19:

@@ -49,6 +49,8 @@ _CAUTIOUS = ("a larger value means a larger expected position error, so lower sp
 RULES: dict[tuple[str, str], Rule] = {
     ("limits", "v_max"): Rule("max", _SLOWER + " (it also caps every braking-point limit)"),
     ("limits", "a_max"): Rule("max", _SLOWER + " (the re-time still meets every speed limit)"),
+    ("limits", "j_max"): Rule("timeout", "a lower jerk limit only smooths and slows the flight "
+                              "(the file's 0, none, allows any limit: setting one tightens)"),
     ("limits", "smoothness"): Rule(
         "range", "a larger weight gives a gentler, slower speed profile (less acceleration "
         "and jerk, which the vehicle tracks better) and a smaller one flies nearer the limits",
@@ -152,6 +154,7 @@ def check_change(file: Config, new: Config, changes: dict[str, dict[str, Any]]) 
 PLAUSIBLE = {
     ("limits", "v_max"): 30.0,  # m/s
     ("limits", "a_max"): 30.0,  # m/s^2 per axis
+    ("limits", "j_max"): 1000.0,  # m/s^3 per axis
     ("limits", "max_solve_s"): 30.0,
     ("safety", "max_message_age_s"): 60.0,
     ("safety", "max_input_speed"): 60.0,

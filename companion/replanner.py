@@ -117,7 +117,8 @@ class Replanner:
             solver_max_iter=cfg.limits.solver_max_iter,
             ros2=cfg.ros2 if cfg.ros2.enabled and cfg.ros2.retimed_topic else None,
             take_position=None if take is None else take.position,
-            take_velocity=None if take is None else take.velocity)
+            take_velocity=None if take is None else take.velocity,
+            take_acceleration=None if take is None else take.acceleration)
         self.retiming = incoming.id
         try:
             out = await self.retimer.replan(job, cfg.limits.max_solve_s)

@@ -44,6 +44,7 @@ class ReplanJob:
     braking: BrakingParams
     take_position: np.ndarray | None = None  # commanded state at takeover; None: from rest
     take_velocity: np.ndarray | None = None
+    take_acceleration: np.ndarray | None = None  # imposed (along the path) when jerk-limited
     stitch_tolerance: float = 1.0
     solver_max_iter: int = 200
     ros2: Ros2Settings | None = None  # also build the ROS 2 message of the result
@@ -90,8 +91,13 @@ def _replan(job: ReplanJob) -> ReplanOutcome:
             return ReplanOutcome(None, time.perf_counter() - start, b"", str(exc))
     safety = None if _MAP is None else Safety(map=_MAP, uncertainty=job.uncertainty,
                                               chance=job.chance, braking=job.braking)
+    # Jerk-limited: the new plan starts on the commanded acceleration too (its part
+    # along the path), so the acceleration does not step at the takeover.
+    a0 = (job.take_acceleration if job.limits.j_max is not None
+          and job.take_position is not None else None)
     result = retime(RetimeInput(trajectory=traj, limits=job.limits, smoothness=job.smoothness,
-                                dtau=job.dtau, start_velocity=v0, safety=safety,
+                                dtau=job.dtau, start_velocity=v0, start_acceleration=a0,
+                                safety=safety,
                                 solver=SolverSettings(max_iter=job.solver_max_iter)))
     seconds = time.perf_counter() - start
     msg = TrajectoryMessage(traj, id=job.id, frame="ENU", stamp=job.stamp)

@@ -56,6 +56,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 import rota.checkpoints as _cp
+from rota import bench_jerk
 from rota import chain as _chain
 from rota.bench_peers import A_MAX, V_MAX, cvxpy_solve, run_copp, run_toppra
 from rota.path import evaluate as _evaluate
@@ -554,6 +555,7 @@ def to_markdown(report: dict[str, Any]) -> str:
     fits = report["fit"]
     lines += ["", "Growth of the time with the number of samples (log-log slope, rows with "
               "N >= 100): " + ", ".join(f"{k} {v:.2f}" for k, v in fits.items()) + "."]
+    lines += bench_jerk.to_markdown(report.get("jerk_rows", []))
     return "\n".join(lines) + "\n"
 
 
@@ -581,10 +583,11 @@ def run_bench(out_dir: str | Path, quick: bool = False, repeats: int = 5,
             sel = [r for r in rows if r["trajectory"] == name and r["N"] >= 100]
             fit[f"{key} {name}"] = fit_exponent([r["N"] for r in sel],
                                                 [r["median_s"][key] for r in sel])
+    jerk_rows = bench_jerk.jerk_rows(trajs, safety, V_MAX, A_MAX, LAMBDA, repeats, quick, log)
     startup = {} if quick else startup_costs()
     seconds = time.perf_counter() - start
     report = {"machine": machine(), "repeats": repeats, "rows": rows, "topp_rows": topp_rows,
-              "fit": fit, "startup": startup, "seconds": seconds,
+              "jerk_rows": jerk_rows, "fit": fit, "startup": startup, "seconds": seconds,
               "calibration_ms": 1e3 * calibration,
               "host_steal_share": (host_steal_s() - steal0) / (seconds * (os.cpu_count() or 1))}
     out = Path(out_dir)

@@ -69,6 +69,9 @@ def add_retime_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--v-max", type=float, default=2.0, help="speed limit, m/s (default 2.0)")
     g.add_argument("--a-max", type=_floats, default=[3.0],
                    help="acceleration limit per axis, m/s^2: one value or ax,ay,az (default 3)")
+    g.add_argument("--j-max", type=_floats, default=None,
+                   help="jerk limit per axis, m/s^3: one value or jx,jy,jz (default none; "
+                        "PX4's MPC_JERK_AUTO is 4)")
     g.add_argument("--lambda", dest="smoothness", type=float, default=0.5,
                    help="smoothness weight lambda (paper Eq. 10; default 0.5, 0 = time-optimal)")
     g.add_argument("--dtau", type=float, default=0.1,
@@ -130,7 +133,9 @@ def build_safety(args: argparse.Namespace) -> Safety | None:
 
 def build_input(args: argparse.Namespace, trajectory: Trajectory) -> RetimeInput:
     a_max = args.a_max[0] if len(args.a_max) == 1 else tuple(args.a_max)
-    return RetimeInput(trajectory=trajectory, limits=Limits(args.v_max, a_max),
+    j = getattr(args, "j_max", None)
+    j_max = None if j is None else (j[0] if len(j) == 1 else tuple(j))
+    return RetimeInput(trajectory=trajectory, limits=Limits(args.v_max, a_max, j_max),
                        smoothness=args.smoothness, dtau=args.dtau,
                        start_velocity=np.asarray(args.start_velocity),
                        safety=build_safety(args))

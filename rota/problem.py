@@ -22,15 +22,20 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Limits:
-    """Kinematic limits: speed on the velocity norm (m/s), acceleration per axis (m/s^2).
+    """Kinematic limits: speed on the velocity norm (m/s), acceleration per axis
+    (m/s^2) and, optionally, jerk per axis (m/s^3).
 
     Paper Eq. 11c uses per-axis boxes for both; we bound the speed (the norm),
     which is what users mean by "max velocity" and what the SOCP handles exactly
-    (Eq. 23). A scalar ``a_max`` applies to all three axes.
+    (Eq. 23). A scalar ``a_max`` (or ``j_max``) applies to all three axes.
+    ``j_max`` None (the default) leaves the jerk free: the paper's problem, whose
+    optimum is bang-bang in acceleration. With a jerk bound the re-time is
+    :func:`rota.jerk.retime_jerk` (acceleration continuous, jerk bounded).
     """
 
     v_max: float
     a_max: float | tuple[float, float, float]
+    j_max: float | tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "v_max", positive(self.v_max, "limits.v_max"))
@@ -45,10 +50,31 @@ class Limits:
             )
         vals = tuple(positive(x, f"limits.a_max[{k}]") for k, x in enumerate(a))
         object.__setattr__(self, "a_max", vals)
+        if self.j_max is not None:
+            object.__setattr__(self, "j_max", _per_axis(self.j_max, "limits.j_max"))
 
     @property
     def a_max_vec(self) -> FloatArray:
         return np.asarray(self.a_max, dtype=float)
+
+    @property
+    def j_max_vec(self) -> FloatArray | None:
+        """The jerk bound per axis, or None when the jerk is free."""
+        return None if self.j_max is None else np.asarray(self.j_max, dtype=float)
+
+
+def _per_axis(value: object, name: str) -> tuple[float, float, float]:
+    """One positive number, or three (x, y, z)."""
+    if np.ndim(value) == 0:
+        x = positive(value, name)
+        return (x, x, x)
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, f"must be one number or 3 (x, y, z), got {value!r}") from None
+    if a.shape != (3,):
+        raise InputError(name, f"must be one number or 3 (x, y, z), got {value!r}")
+    return tuple(positive(float(x), f"{name}[{k}]") for k, x in enumerate(a))  # type: ignore[return-value]
 
 
 #: The solvers :class:`SolverSettings` can choose (see :mod:`rota.solver`).

@@ -47,6 +47,10 @@ def retime(inp: RetimeInput) -> RetimeResult:
     (:mod:`rota.solver`), after a reachability pass that decides feasibility
     exactly and, at lambda = 0, often the optimum itself.
     """
+    if inp.limits.j_max is not None:
+        from rota.jerk import retime_jerk  # noqa: PLC0415 - it calls back for the unlimited
+
+        return retime_jerk(inp)
     traj = inp.trajectory
     tau, pos, d1, d2 = on_grid(traj, grid_intervals(traj, inp.dtau))
     vlim = np.full(len(tau), inp.limits.v_max)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from rota.errors import InputError
+from rota.jerkmap import JerkTimeMap
 from rota.result import RetimeResult
 from rota.solver import SolverStats
 from rota.timemap import TimeMap
@@ -185,6 +186,10 @@ def result_to_dict(result: RetimeResult, msg: TrajectoryMessage,
         "braking_zones": [list(map(float, iv)) for iv in result.extras.get("intervals", ())],
         "trajectory": trajectory_to_dict(msg),
     }
+    if isinstance(result.timemap, JerkTimeMap):  # jerk-limited: tau_ddot continuous
+        tm = result.timemap
+        out["acc"] = tm.acc.tolist()
+        out["rest_start"], out["rest_end"] = tm.rest_start, tm.rest_end
     if rate_hz is not None:
         sp = result.sample_rate(rate_hz)
         out["setpoints"] = {"rate": rate_hz, "t": sp.t.tolist(), "p": sp.position.tolist(),
@@ -216,9 +221,20 @@ def result_from_dict(d: object) -> tuple[RetimeResult, TrajectoryMessage]:
                                                else float(s["objective"]))
     extras = {"intervals": [tuple(iv) for iv in d.get("braking_zones", [])]}
     result = RetimeResult(str(_require(d, "status")), str(d.get("message", "")),
-                          TimeMap(tau, beta), msg.trajectory, stats, limits, extras,
+                          _timemap(d, tau, beta), msg.trajectory, stats, limits, extras,
                           tuple(str(w) for w in d.get("warnings", [])))
     return result, msg
+
+
+def _timemap(d: dict, tau: np.ndarray, beta: np.ndarray) -> TimeMap | JerkTimeMap:
+    """The time mapping of a result message: with ``acc``, jerk-limited."""
+    if d.get("acc") is None:
+        return TimeMap(tau, beta)
+    acc = np.asarray(d["acc"], dtype=float)
+    if acc.shape != tau.shape or not np.all(np.isfinite(acc)):
+        raise InputError("acc", "must be a list of finite numbers, one per node")
+    return JerkTimeMap(tau, beta, acc, bool(d.get("rest_start", False)),
+                       bool(d.get("rest_end", False)))
 
 
 def load(path: str | Path) -> Any:
