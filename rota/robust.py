@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.braking import BrakingParams, BrakingZones, horizon_of, zones_from
+from rota.braking import BrakingParams, BrakingZones, horizon_of, reach_of, zones_from
 from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args
 from rota.errors import InputError
 from rota.jit import kernels
@@ -115,17 +115,18 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
     if position is None or velocity is None:
         position, velocity, _ = trajectory.evaluate(tau)
     p, d1 = position, velocity
-    margin = max(2.0, safety.braking.d_th)
+    reach = reach_of(safety.braking, safety.uncertainty, safety.chance)
+    margin = max(2.0, reach * (1.0 + 1e-9) + 1e-9)
     p = np.ascontiguousarray(p, dtype=float)
     bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
     # (a writable copy: the kernel is compiled for writable arrays)
     box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)
     unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
     distance, obstacle, flags, values, starts, ends = kernels().assess_path(
-        p, d1, *safety.map.query_args(p, margin), safety.braking.d_th,
+        p, d1, *safety.map.query_args(p, margin), safety.braking.d_th, safety.braking.risk,
         horizon_of(safety.braking), *kernel_args(safety.uncertainty, safety.chance),
         float(safety.uncertainty.memory_s),
-        max(safety.braking.d_th, max(safety.chance.semi_axes)), box[0], box[1],
+        max(reach, max(safety.chance.semi_axes)), box[0], box[1],
         float(unknown))
     mask, infeasible, approach, collision, outside = flags
     limit, unclamped, limits = values
