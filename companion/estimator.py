@@ -67,6 +67,8 @@ _FLOOR = 0.01  # s never goes below this in the likelihood (m)
 SCHEMA = "rota/deviation-estimate"
 #: The outlier gate's model is refitted every this many samples.
 GATE_REFIT = 25
+#: The fit follows the evidence every this many accepted samples (1 s at 5 Hz).
+REFIT_EVERY = 5
 
 
 @dataclass(frozen=True)
@@ -110,8 +112,9 @@ def _fit_all(count: np.ndarray, sq: np.ndarray, vsum: np.ndarray, m0: float, b0:
     counts ``count``, sums of squared deviations ``sq`` and sums of speeds ``vsum`` (rows x
     bins; a bin's speed is its mean).
 
-    Per memory time, a filterpy :class:`~filterpy.kalman.KalmanFilter` over ``(m, b)``
-    starts at the prior ``N((m0, b0), diag(s_m^2, s_b^2))`` and takes the bins' RMS
+    Per memory time, a filterpy :class:`~filterpy.kalman.KalmanFilter` over ``(m, b)`` (all
+    memory times in one filter, as independent blocks of its state) starts at the prior
+    ``N((m0, b0), diag(s_m^2, s_b^2))`` and takes the bins' RMS
     deviations as measurements (``H`` rows ``(v, 1)``, noise ``s^2 / (2 n)``, the inverse
     Fisher information of a bin of ``n`` axis samples; passed in their sufficient 2 x 2
     form); the noise is re-judged at
@@ -121,34 +124,41 @@ def _fit_all(count: np.ndarray, sq: np.ndarray, vsum: np.ndarray, m0: float, b0:
     has = count > 1e-9
     v = np.where(has, vsum / np.where(has, count, 1.0), (np.arange(N_BINS) + 0.5) * BIN_WIDTH)
     rms = np.sqrt(np.where(has, sq / np.where(has, count, 1.0), 0.0))
-    out = []
-    for k in range(len(count)):
-        m, b = m0, b0
-        kf = KalmanFilter(dim_x=2, dim_z=2)
-        for _ in range(4):
-            line = m * v[k] + b
-            s = np.maximum(line, _FLOOR)
-            use = has[k] & (line > _FLOOR)
-            kf = KalmanFilter(dim_x=2, dim_z=2)
-            kf.x = np.array([[m0], [b0]])
-            kf.P = np.diag([s_m**2, s_b**2])
-            if use.any():
-                # The bins' measurements in their sufficient form: the weighted least-squares
-                # line z and its covariance R (the same posterior as one update with every
-                # bin, at the cost of a 2 x 2 one); a direction no bin informs gets 1e12.
-                w = np.where(use, 2.0 * count[k] / s**2, 0.0)
-                info = np.array([[(w * v[k] ** 2).sum(), (w * v[k]).sum()],
-                                 [(w * v[k]).sum(), w.sum()]]) + np.eye(2) * 1e-12
-                rhs = np.array([(w * v[k] * rms[k]).sum(), (w * rms[k]).sum()])
-                cov = np.linalg.inv(info)
-                kf.update((cov @ rhs)[:, None], R=cov, H=np.eye(2))
-            m = min(max(float(kf.x[0, 0]), bounds[0]), bounds[1])
-            b = min(max(float(kf.x[1, 0]), bounds[2]), bounds[3])
-        s = np.maximum(m * v[k] + b, _FLOOR)
-        nll = float((sq[k] / (2.0 * s**2) + count[k] * np.log(s)).sum())
-        out.append((m, b, math.sqrt(max(float(kf.P[0, 0]), 0.0)),
-                    math.sqrt(max(float(kf.P[1, 1]), 0.0)), nll))
-    return out
+    rows = len(count)
+    m = np.full(rows, m0)
+    b = np.full(rows, b0)
+    prior_x = np.tile([m0, b0], rows)[:, None]
+    prior_p = np.kron(np.eye(rows), np.diag([s_m**2, s_b**2]))
+    # One filterpy filter whose state holds every memory time's (m, b) (independent blocks):
+    # one update per re-weighting for all of them.
+    kf = KalmanFilter(dim_x=2 * rows, dim_z=2 * rows)
+    for _ in range(4):
+        line = m[:, None] * v + b[:, None]
+        s = np.maximum(line, _FLOOR)
+        w = np.where(has & (line > _FLOOR), 2.0 * count / s**2, 0.0)
+        # the bins' measurements in their sufficient form: per memory time the weighted
+        # least-squares line and its covariance (the same posterior as one update per bin;
+        # a direction no bin informs gets a variance of 1e12)
+        info = np.empty((rows, 2, 2))
+        info[:, 0, 0] = (w * v * v).sum(1) + 1e-12
+        info[:, 0, 1] = info[:, 1, 0] = (w * v).sum(1)
+        info[:, 1, 1] = w.sum(1) + 1e-12
+        rhs = np.stack([(w * v * rms).sum(1), (w * rms).sum(1)], axis=1)
+        cov = np.linalg.inv(info)
+        z = np.einsum("kij,kj->ki", cov, rhs).reshape(-1, 1)
+        r = np.zeros((2 * rows, 2 * rows))
+        for k in range(rows):
+            r[2 * k:2 * k + 2, 2 * k:2 * k + 2] = cov[k]
+        kf.x = prior_x.copy()
+        kf.P = prior_p.copy()
+        kf.update(z, R=r, H=np.eye(2 * rows))
+        m = np.clip(kf.x[0::2, 0], bounds[0], bounds[1])
+        b = np.clip(kf.x[1::2, 0], bounds[2], bounds[3])
+    s = np.maximum(m[:, None] * v + b[:, None], _FLOOR)
+    nll = (sq / (2.0 * s**2) + count * np.log(s)).sum(1)
+    var = np.diag(kf.P)
+    return [(float(m[k]), float(b[k]), math.sqrt(max(float(var[2 * k]), 0.0)),
+             math.sqrt(max(float(var[2 * k + 1]), 0.0)), float(nll[k])) for k in range(rows)]
 
 
 class UncertaintyEstimator:
@@ -241,7 +251,8 @@ class UncertaintyEstimator:
         self._weight += s.sample_weight
         self.samples += 1
         self.session_samples += 1
-        self._fits = None
+        if self.samples % REFIT_EVERY == 0:  # a refit costs a few ms: once a second at 5 Hz
+            self._fits = None
         return "accepted"
 
     def _window_speeds(self, now: float) -> np.ndarray:
