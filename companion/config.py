@@ -124,7 +124,9 @@ class UncertaintySection:
     semi_axes: tuple[float, float, float] = (0.3, 0.3, 0.3)  # robot ellipsoid, m
     obstacle_std: float = 0.03
     v_floor: float = 0.5
-    d_th: float = 1.0  # braking-zone distance threshold, m
+    # braking zones follow the risk (docs/safety-model.md, section 2); d_th > 0 also makes
+    # every obstacle within d_th metres a braking point (an override; 0: none)
+    d_th: float = 0.0
     # error memory T, s: a braking point's speed limit also holds over the T seconds before
     # it (0: the paper's ROTA); default from the collision experiment (docs/table1.md)
     memory_s: float = DEFAULT_MEMORY_S
@@ -339,10 +341,12 @@ def validate(cfg: Config) -> None:
                           ("safety", "max_message_age_s"), ("safety", "max_input_speed"),
                           ("safety", "stitch_tolerance_m"), ("safety", "max_tracking_error_m"),
                           ("safety", "tracking_lag_s"),
-                          ("safety", "max_trajectory_points"), ("uncertainty", "d_th"),
+                          ("safety", "max_trajectory_points"),
                           ("record", "max_file_mb"), ("record", "queue")] + [
                           ("inputs", f.name) for f in fields(InputsSection)]:
         positive(section, name)
+    if not cfg.uncertainty.d_th >= 0:
+        raise ConfigError(f"[uncertainty] d_th: must be >= 0, got {cfg.uncertainty.d_th!r}")
     s = cfg.stream
     if s.rate_hz < 2.5:
         raise ConfigError("[stream] rate_hz: PX4 needs offboard setpoints faster than 2 Hz")

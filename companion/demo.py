@@ -16,7 +16,6 @@ import json
 import logging
 import multiprocessing
 import socket
-import tempfile
 import time
 from collections.abc import AsyncIterator
 from concurrent.futures import ProcessPoolExecutor
@@ -277,7 +276,10 @@ def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
     out.mkdir(parents=True, exist_ok=True)
     world = get_world("forest", seed=seed)
     zenoh_port = free_tcp_port()
-    with tempfile.TemporaryDirectory() as state, _vehicle(px4_build, world, seed) as vehicle:
+    # The service's persisted state (the in-flight estimate) lives under the output folder
+    # and is kept: a second and third demo in a row fly with what the first one learned.
+    state = str(out / "state")
+    with _vehicle(px4_build, world, seed) as vehicle:
         mav_port, home, sim = vehicle
         cfg = demo_config(mav_port, zenoh_port, speed, state, record={"dir": str(out / "records")})
         print(f"demo: forest world seed {seed} ({len(world.obstacles)} trees), speed limit "

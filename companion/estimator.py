@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from filterpy.kalman import KalmanFilter
 
 from rota.chance import UncertaintyModel
 
@@ -64,6 +65,10 @@ MEMORY_GRID = tuple(np.round(np.arange(0.0, 3.01, 0.25), 2))
 BIN_WIDTH, N_BINS = 0.1, 80
 _FLOOR = 0.01  # s never goes below this in the likelihood (m)
 SCHEMA = "rota/deviation-estimate"
+#: The outlier gate's model is refitted every this many samples.
+GATE_REFIT = 25
+#: The fit follows the evidence every this many accepted samples (1 s at 5 Hz).
+REFIT_EVERY = 5
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ class EstimatorSettings:
     b_max: float = 1.0
     prior_std_m: float = 0.15  # prior standard deviation of m (s)
     prior_std_b: float = 0.15  # prior standard deviation of b (m)
+    prior_weight_s: float = 10.0  # evidence rule: the configured model weighs this much flight (s)
     sample_weight: float = 0.2  # weight of one 5 Hz sample (about one independent per second)
     forget_s: float = 1200.0  # statistics fade with this time constant (s of flight)
     max_deviation_m: float = 5.0  # a larger deviation is a glitch, not uncertainty
@@ -102,34 +108,57 @@ class Fit:
 def _fit_all(count: np.ndarray, sq: np.ndarray, vsum: np.ndarray, m0: float, b0: float,
              s_m: float, s_b: float, bounds: tuple[float, float, float, float]
              ) -> list[tuple[float, ...]]:
-    """Per memory time (rows): ``(m, b, m_std, b_std, nll)``, fitted from the bins'
-    weighted counts ``count``, sums of squared deviations ``sq`` and sums of speeds ``vsum``
-    (rows x bins; a bin's speed is its mean)."""
+    """Per memory time (rows): ``(m, b, m_std, b_std, nll)``, fitted from the bins' weighted
+    counts ``count``, sums of squared deviations ``sq`` and sums of speeds ``vsum`` (rows x
+    bins; a bin's speed is its mean).
+
+    Per memory time, a filterpy :class:`~filterpy.kalman.KalmanFilter` over ``(m, b)`` (all
+    memory times in one filter, as independent blocks of its state) starts at the prior
+    ``N((m0, b0), diag(s_m^2, s_b^2))`` and takes the bins' RMS
+    deviations as measurements (``H`` rows ``(v, 1)``, noise ``s^2 / (2 n)``, the inverse
+    Fisher information of a bin of ``n`` axis samples; passed in their sufficient 2 x 2
+    form); the noise is re-judged at
+    the updated line and the update repeated from the prior (iteratively re-weighted: the
+    filter's posterior is then the penalised maximum-likelihood fit). Bins where the model
+    sits at its floor say nothing about the line and are left out."""
     has = count > 1e-9
     v = np.where(has, vsum / np.where(has, count, 1.0), (np.arange(N_BINS) + 0.5) * BIN_WIDTH)
     rms = np.sqrt(np.where(has, sq / np.where(has, count, 1.0), 0.0))
-    m = np.full(len(count), m0)
-    b = np.full(len(count), b0)
-    lam_m, lam_b = 1.0 / s_m**2, 1.0 / s_b**2
-    cov = np.zeros((len(count), 2, 2))
-    for _ in range(4):  # IRLS: weights 2 n / s^2 at the current fit
+    rows = len(count)
+    m = np.full(rows, m0)
+    b = np.full(rows, b0)
+    prior_x = np.tile([m0, b0], rows)[:, None]
+    prior_p = np.kron(np.eye(rows), np.diag([s_m**2, s_b**2]))
+    # One filterpy filter whose state holds every memory time's (m, b) (independent blocks):
+    # one update per re-weighting for all of them.
+    kf = KalmanFilter(dim_x=2 * rows, dim_z=2 * rows)
+    for _ in range(4):
         line = m[:, None] * v + b[:, None]
         s = np.maximum(line, _FLOOR)
-        # Bins where the model sits at its floor say nothing about the line.
         w = np.where(has & (line > _FLOOR), 2.0 * count / s**2, 0.0)
-        a11 = (w * v * v).sum(1) + lam_m
-        a12 = (w * v).sum(1)
-        a22 = w.sum(1) + lam_b
-        r1 = (w * v * rms).sum(1) + lam_m * m0
-        r2 = (w * rms).sum(1) + lam_b * b0
-        det = a11 * a22 - a12 * a12
-        m = np.clip((a22 * r1 - a12 * r2) / det, bounds[0], bounds[1])
-        b = np.clip((a11 * r2 - a12 * r1) / det, bounds[2], bounds[3])
-        cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1] = a22 / det, a11 / det, -a12 / det
+        # the bins' measurements in their sufficient form: per memory time the weighted
+        # least-squares line and its covariance (the same posterior as one update per bin;
+        # a direction no bin informs gets a variance of 1e12)
+        info = np.empty((rows, 2, 2))
+        info[:, 0, 0] = (w * v * v).sum(1) + 1e-12
+        info[:, 0, 1] = info[:, 1, 0] = (w * v).sum(1)
+        info[:, 1, 1] = w.sum(1) + 1e-12
+        rhs = np.stack([(w * v * rms).sum(1), (w * rms).sum(1)], axis=1)
+        cov = np.linalg.inv(info)
+        z = np.einsum("kij,kj->ki", cov, rhs).reshape(-1, 1)
+        r = np.zeros((2 * rows, 2 * rows))
+        for k in range(rows):
+            r[2 * k:2 * k + 2, 2 * k:2 * k + 2] = cov[k]
+        kf.x = prior_x.copy()
+        kf.P = prior_p.copy()
+        kf.update(z, R=r, H=np.eye(2 * rows))
+        m = np.clip(kf.x[0::2, 0], bounds[0], bounds[1])
+        b = np.clip(kf.x[1::2, 0], bounds[2], bounds[3])
     s = np.maximum(m[:, None] * v + b[:, None], _FLOOR)
     nll = (sq / (2.0 * s**2) + count * np.log(s)).sum(1)
-    return [(float(m[i]), float(b[i]), float(math.sqrt(cov[i, 0, 0])),
-             float(math.sqrt(cov[i, 1, 1])), float(nll[i])) for i in range(len(count))]
+    var = np.diag(kf.P)
+    return [(float(m[k]), float(b[k]), math.sqrt(max(float(var[2 * k]), 0.0)),
+             math.sqrt(max(float(var[2 * k + 1]), 0.0)), float(nll[k])) for k in range(rows)]
 
 
 class UncertaintyEstimator:
@@ -154,8 +183,11 @@ class UncertaintyEstimator:
         self._vsum = np.zeros((len(self.grid), N_BINS))
         self._speeds: deque[tuple[float, float]] = deque()
         self.samples = self.outliers = self.skipped = 0
+        self.session_samples = 0  # accepted since this estimator started (the restart floor)
+        self._weight = 0.0  # seconds of evidence (faded with forget_s)
         self._last_t: float | None = None
         self._fits: list[Fit] | None = None
+        self._gate: tuple[UncertaintyModel, UncertaintyModel] | None = None
         self._anchor = (self.prior.m, self.prior.b)
         self._trusted = False
         self._set_memory: float | None = None  # set() by the operator
@@ -193,9 +225,15 @@ class UncertaintyEstimator:
             self.outliers += 1
             return "outlier"
         if self.samples >= s.min_samples:
-            used = self.model()
-            model_s = max(used.m * float(np.interp(used.memory_s, self.grid, v_t)) + used.b,
-                          _FLOOR)
+            # (the gate's model is refitted every GATE_REFIT samples: a refit is a few ms)
+            # (judged at the larger of the model in use and the evidence's own fit: the
+            # evidence rule holding the estimate near the prior must not reject the evidence)
+            if self._gate is None or self.samples % GATE_REFIT == 0:
+                fit = self.best()[0]
+                self._gate = (self.model(), UncertaintyModel(m=fit.m, b=fit.b,
+                                                             memory_s=fit.memory_s))
+            model_s = max(max(u.m * float(np.interp(u.memory_s, self.grid, v_t)) + u.b
+                              for u in self._gate), _FLOOR)
             if math.sqrt(sq / len(dev)) > s.gate * model_s:
                 self.outliers += 1
                 return "outlier"
@@ -204,13 +242,17 @@ class UncertaintyEstimator:
             self._count *= fade
             self._sq *= fade
             self._vsum *= fade
+            self._weight *= fade
         rows = np.arange(len(self.grid))
         bins = np.minimum((v_t / BIN_WIDTH).astype(int), N_BINS - 1)
         self._count[rows, bins] += s.sample_weight * len(dev)
         self._sq[rows, bins] += s.sample_weight * sq
         self._vsum[rows, bins] += s.sample_weight * len(dev) * v_t
+        self._weight += s.sample_weight
         self.samples += 1
-        self._fits = None
+        self.session_samples += 1
+        if self.samples % REFIT_EVERY == 0:  # a refit costs a few ms: once a second at 5 Hz
+            self._fits = None
         return "accepted"
 
     def _window_speeds(self, now: float) -> np.ndarray:
@@ -263,11 +305,24 @@ class UncertaintyEstimator:
 
     @property
     def m(self) -> float:
-        return self.best()[0].m
+        return self._anchor[0] + self.shrink * (self.best()[0].m - self._anchor[0])
 
     @property
     def b(self) -> float:
-        return self.best()[0].b
+        return self._anchor[1] + self.shrink * (self.best()[0].b - self._anchor[1])
+
+    @property
+    def evidence_s(self) -> float:
+        """Seconds of flight evidence (faded with ``forget_s``) the estimate rests on."""
+        return self._weight
+
+    @property
+    def shrink(self) -> float:
+        """The evidence rule: the share of the way from the configured (or set) model to the
+        fit that the estimate has gone, ``t / (t + prior_weight_s)`` after ``t`` seconds of
+        evidence (``prior_weight_s = 0``: all the way)."""
+        w = self.settings.prior_weight_s
+        return 1.0 if w <= 0 else self._weight / (self._weight + w)
 
     @property
     def memory_s(self) -> float:
@@ -291,10 +346,11 @@ class UncertaintyEstimator:
         """``"estimate"`` or ``"prior"``: which one ROTA gets now."""
         if not self.settings.enabled:
             return "prior"
-        if self.samples >= self.settings.min_samples or self._trusted:
+        if self.session_samples >= self.settings.min_samples or self._trusted:
             return "estimate"
-        # Before enough evidence: the estimate only if it is at least as cautious as the
-        # prior at low speed and at the speed limit, and remembers at least as long.
+        # Before enough evidence since this start: the estimate only if it is at least as
+        # cautious as the prior (the config file) at low speed and at the speed limit, and
+        # remembers at least as long. So the file is the floor after every restart.
         est, pri = self.estimate(), self.prior
         if est.memory_s < pri.memory_s:
             return "prior"
@@ -317,13 +373,16 @@ class UncertaintyEstimator:
                              "b_std": round(sb, 5), "memory_gain": round(self.memory_gain, 3)},
                 "prior": {"m": self.prior.m, "b": self.prior.b,
                           "memory_s": self.prior.memory_s},
-                "samples": self.samples, "outliers": self.outliers,
-                "frozen": self.settings.frozen, "per_axis": self.prior.per_axis}
+                "samples": self.samples, "session_samples": self.session_samples,
+                "evidence_s": round(self._weight, 1), "shrink": round(self.shrink, 3),
+                "outliers": self.outliers, "frozen": self.settings.frozen,
+                "per_axis": self.prior.per_axis}
 
     # ------------------------------------------------------------- control
     def set(self, m: float, b: float, memory_s: float | None = None) -> None:
-        """Trust ``m``, ``b`` (and ``T``) as if ``min_samples`` had been seen: they become the
-        prior mean the data is fitted around, and the configured memory time."""
+        """Trust ``m``, ``b`` (and ``T``) as if ``min_samples`` had been seen (until the next
+        restart: then the config file is the floor again): they become the prior mean the
+        data is fitted around, and the configured memory time."""
         s = self.settings
         if not (s.m_min <= m <= s.m_max and s.b_min <= b <= s.b_max):
             raise ValueError(f"m={m}, b={b} outside the bounds m in [{s.m_min}, {s.m_max}], "
@@ -346,7 +405,7 @@ class UncertaintyEstimator:
                 "vsum": self._vsum.tolist(),
                 "anchor": list(self._anchor), "trusted": self._trusted,
                 "set_memory_s": self._set_memory,
-                "samples": self.samples, "outliers": self.outliers,
+                "samples": self.samples, "outliers": self.outliers, "evidence_s": self._weight,
                 "frozen": self.settings.frozen, "prior": asdict(self.prior)}
 
     def save(self) -> None:
@@ -378,12 +437,21 @@ class UncertaintyEstimator:
             raise ValueError(f"{self.path}: cannot restore the uncertainty estimate ({exc})") \
                 from None
         self._count, self._sq, self._vsum = count, sq, vsum
-        self._anchor = anchor  # type: ignore[assignment]
-        self._trusted = bool(d.get("trusted", False))
+        # The config file is the floor after every restart: a saved set that is less
+        # cautious than the file (in m, b or the memory time) is dropped, and nothing saved is
+        # trusted until min_samples new samples arrive (in_use); the evidence itself stays.
+        pri = self.prior
+        self._anchor = (max(anchor[0], pri.m), max(anchor[1], pri.b))  # type: ignore[index]
+        self._trusted = False
         memory = d.get("set_memory_s")
-        self._set_memory = None if memory is None else float(memory)
+        self._set_memory = (None if memory is None or float(memory) < pri.memory_s
+                            else float(memory))
+        weight = d.get("evidence_s")
+        self._weight = (float(count[0].sum()) / 2.0 if not isinstance(weight, int | float)
+                        or not math.isfinite(weight) or weight < 0 else float(weight))
         self.samples = int(d.get("samples", 0))
         self.outliers = int(d.get("outliers", 0))
+        self.session_samples = 0
         self._fits = None
         if d.get("frozen"):
             self.freeze(True)

@@ -5,6 +5,15 @@ obstacle ``o_i`` is close and ahead:
 
     ||o_i - p_i|| <= d_th   and   (o_i - p_i) . v_i >= 0
 
+"Close" is the paper's fixed ``d_th``. Here, by default, it follows the risk: an
+obstacle is close when, with the uncertainty model's std at ``v_max``, Delta and
+the obstacle's distance, the chance-constrained speed limit at the sample (Eqs.
+14-15) falls below ``v_max`` (or no speed meets the bound). That is exactly the set
+of samples where a limit can bind, so no other threshold is needed
+(``docs/safety-model.md``, section 2). ``d_th`` stays as an explicit override: an
+obstacle within ``d_th`` makes a braking point as well, and ``risk=False`` gives
+the paper's Eq. 6 alone.
+
 An obstacle behind the vehicle never makes a braking point. Runs of braking
 points become time intervals in trajectory time ``tau`` (Alg. 1 line 16), which
 are then refined (line 17): short gaps are merged and short intervals dropped.
@@ -37,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rota.chance import ChanceParams, UncertaintyModel, kernel_args, risk_reach
 from rota.errors import InputError
 from rota.jit import kernels
 
@@ -66,7 +76,11 @@ class BrakingParams:
     """Parameters of Alg. 1.
 
     Attributes:
-        d_th: distance threshold of Eq. 6 (m). Default 1.0 m (paper / authors).
+        d_th: fixed distance threshold of Eq. 6 (m): an obstacle within it always
+            makes a braking point. Default 0: none (paper / authors: 1.0 m).
+        risk: braking points also where the chance limit falls below ``v_max``
+            (default; see the module docstring). ``False`` with ``d_th = 1.0`` is
+            the paper's Eq. 6.
         min_interval: refined intervals no longer than this (tau seconds) are
             dropped. ``None``: ``min(0.1 T, 0.5)`` as in the authors' code.
         merge_gap: gaps between intervals no longer than this (tau seconds) are
@@ -76,7 +90,8 @@ class BrakingParams:
             ``None`` (default): the whole trajectory.
     """
 
-    d_th: float = 1.0
+    d_th: float = 0.0
+    risk: bool = True
     min_interval: float | None = None
     merge_gap: float | None = None
     horizon_length: float | None = None
@@ -86,6 +101,8 @@ class BrakingParams:
         if d is None or not math.isfinite(d):
             raise InputError("d_th", "must be a finite number >= 0")
         object.__setattr__(self, "d_th", d)
+        if not isinstance(self.risk, bool):
+            raise InputError("risk", f"must be true or false, got {self.risk!r}")
         for name in ("min_interval", "merge_gap", "horizon_length"):
             object.__setattr__(self, name, _opt_nonneg(getattr(self, name), name))
 
@@ -160,6 +177,8 @@ def find_braking_zones(
     distance: ArrayLike,
     obstacle: ArrayLike,
     params: BrakingParams | None = None,
+    model: UncertaintyModel | None = None,
+    chance: ChanceParams | None = None,
 ) -> BrakingZones:
     """Braking points (paper Eq. 6) and refined braking zones (Alg. 1).
 
@@ -171,6 +190,8 @@ def find_braking_zones(
             e.g. from :meth:`rota.voxelmap.VoxelMap.nearest`.
         obstacle: ``(n, 3)`` nearest obstacle points (``NaN`` rows = none).
         params: :class:`BrakingParams` (defaults if omitted).
+        model, chance: the uncertainty model and chance parameters the risk is
+            judged with (defaults if omitted; unused with ``params.risk`` off).
 
     A sample with zero velocity counts as a braking point when close (the
     paper's ``>= 0``). Samples beyond ``params.horizon_length`` of path length
@@ -190,21 +211,40 @@ def find_braking_zones(
         raise InputError(f"distance[{int(np.argmax(dist < 0))}]", "must be >= 0")
     obst = _array(obstacle, "obstacle", (n, 3), allow_nan=True)
 
-    return zones_of(t, pos, vel, dist.copy(), obst.copy(), params)
+    return zones_of(t, pos, vel, dist.copy(), obst.copy(), params,
+                    UncertaintyModel() if model is None else model,
+                    ChanceParams() if chance is None else chance)
 
 
 def zones_of(t: FloatArray, pos: FloatArray, vel: FloatArray, dist: FloatArray,
-             obst: FloatArray, params: BrakingParams) -> BrakingZones:
+             obst: FloatArray, params: BrakingParams, model: UncertaintyModel,
+             chance: ChanceParams) -> BrakingZones:
     """:func:`find_braking_zones` on checked arrays; ``dist`` and ``obst`` become the
     result's (read-only) arrays, not copied."""
-    mask = np.empty(t.shape[0], dtype=bool)
-    starts, ends = kernels().braking_points(pos, vel, dist, obst, params.d_th,
-                                            horizon_of(params), mask)
+    n = t.shape[0]
+    mask = np.empty(n, dtype=bool)
+    k = kernels()
+    risky = np.empty(n if params.risk else 0, dtype=bool)
+    if params.risk:
+        limit, unclamped, infeasible = np.empty(n), np.empty(n), np.empty(n, dtype=bool)
+        k.chance_limits(np.ascontiguousarray(pos), np.ascontiguousarray(vel),
+                        np.ascontiguousarray(obst), *kernel_args(model, chance), limit,
+                        unclamped, infeasible)
+        k.risky_nodes(limit, infeasible, chance.v_max, risky)
+    starts, ends = k.braking_points(pos, vel, dist, obst, params.d_th, risky,
+                                    horizon_of(params), mask)
     return zones_from(t, mask, starts, ends, dist, obst, params)
 
 
 def horizon_of(params: BrakingParams) -> float:
     return np.inf if params.horizon_length is None else params.horizon_length
+
+
+def reach_of(params: BrakingParams, model: UncertaintyModel, chance: ChanceParams) -> float:
+    """How far (m) an obstacle can make a braking point: ``d_th``, and with the risk
+    on the distance :func:`rota.chance.risk_reach` beyond which no chance limit falls
+    below ``v_max``. The nearest-obstacle query must reach at least this far."""
+    return max(params.d_th, risk_reach(model, chance) if params.risk else 0.0)
 
 
 def zones_from(t: FloatArray, mask: BoolArray, starts: NDArray[np.int64],

@@ -421,6 +421,27 @@ def monte_carlo_collision_probability(
     return np.where(has, out, 0.0)
 
 
+def risk_reach(model: UncertaintyModel, params: ChanceParams) -> float:
+    """The farthest distance (m) at which an obstacle can still pull the chance limit
+    below ``params.v_max``: beyond it the linearised probability (Eq. 14) at ``v_max``,
+    with the std of Eq. 15 at ``v_max`` on every axis, is within Delta.
+
+    ``|d| >= dist / a_max`` and ``a^T Sigma^r a <= (s^2 + s_o^2) / a_min^2`` (``a_max``,
+    ``a_min`` the largest and smallest semi-axes, ``s`` the std at ``v_max``, ``s_o``
+    the largest obstacle std), so ``Pr <= Delta`` once ``dist >= a_max (1 + z
+    sqrt(s^2 + s_o^2) / a_min)``; for an isotropic robot of radius ``r`` that is
+    ``r + z sqrt(s^2 + s_o^2)``, exact (docs/safety-model.md, section 2); a point
+    robot: ``z sqrt(s^2 + s_o^2)``. The std never falls with speed (``m >= 0``), so the
+    error memory (speeds up to ``v_max`` before the node) adds nothing to it.
+    """
+    s = max(model.floor, model.m * params.v_max + model.b, 0.0)
+    spread = params.z * math.hypot(s, max(params.obstacle_std))
+    if params.point_robot:
+        return spread
+    lo, hi = min(params.semi_axes), max(params.semi_axes)
+    return hi * (1.0 + spread / lo)
+
+
 def memory_limits(arclength: ArrayLike, limit: ArrayLike, memory_s: float) -> FloatArray:
     """Speed caps with error memory: node ``i``'s limit ``L_i`` also holds at every node
     ``j <= i`` with ``s_j >= s_i - L_i * T`` (``s`` the path length, ``T = memory_s``),

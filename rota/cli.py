@@ -104,8 +104,12 @@ def add_safety_options(p: argparse.ArgumentParser) -> None:
                    help="obstacle position std, m (default 0.03)")
     g.add_argument("--v-floor", type=float, default=0.5,
                    help="lowest speed limit the chance constraint imposes, m/s (default 0.5)")
-    g.add_argument("--d-th", type=float, default=1.0,
-                   help="braking-zone distance threshold, m (default 1.0)")
+    g.add_argument("--d-th", type=float, default=0.0,
+                   help="also brake for every obstacle within this distance, m (default 0: "
+                        "braking zones follow the risk alone)")
+    g.add_argument("--paper-zones", action="store_true",
+                   help="braking zones by the paper's fixed threshold --d-th alone (Eq. 6), "
+                        "not by the risk")
 
 
 def load_map(path: str, resolution: float) -> VoxelMap:
@@ -127,7 +131,7 @@ def build_safety(args: argparse.Namespace) -> Safety | None:
         chance=ChanceParams(delta=args.delta, semi_axes=tuple(axes),
                             obstacle_std=(args.obstacle_std,) * 3,
                             v_floor=min(args.v_floor, args.v_max), v_max=args.v_max),
-        braking=BrakingParams(d_th=args.d_th),
+        braking=BrakingParams(d_th=args.d_th, risk=not args.paper_zones),
     )
 
 

@@ -10,13 +10,13 @@ per-node speed-limit hook (Eq. 23), plus what the result reports.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.braking import BrakingParams, BrakingZones, horizon_of, zones_from
-from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args
+from rota.braking import BrakingParams, BrakingZones, horizon_of, reach_of, zones_from
+from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args, risk_reach
 from rota.errors import InputError
 from rota.jit import kernels
 from rota.trajectory import Trajectory
@@ -94,15 +94,26 @@ class Assessment:
     outside: BoolArray
     position: FloatArray
     approach: BoolArray
+    model: UncertaintyModel = field(default_factory=UncertaintyModel)
+    params: ChanceParams = field(default_factory=ChanceParams)
 
     def describe_collision(self, tau: FloatArray) -> str:
-        i = int(np.argmax(self.collision))
+        """The closest unsafe node, its clearance, the clearance the model needs there at
+        rest, and the model in use (the flight service adds where it came from)."""
+        hit = np.flatnonzero(self.collision)
+        i = int(hit[np.argmin(self.zones.distance[hit])])
         p = np.round(self.position[i], 2).tolist()
         o = np.round(self.zones.nearest[i], 2).tolist()
-        return (f"the path is unsafe: at tau={tau[i]:.2f} s, position {p} is "
-                f"{self.zones.distance[i]:.2f} m from the obstacle at {o}, inside the robot's "
-                f"safety ellipsoid or too close to meet the collision-probability bound "
-                f"even at rest ({int(self.collision.sum())} grid nodes)")
+        u, c = self.model, self.params
+        need = risk_reach(u, replace(c, v_max=max(c.v_floor, 1e-9)))
+        at_rest = risk_reach(u, replace(c, v_floor=0.0, v_max=1e-9))
+        return (f"the path is unsafe: closest at tau={tau[i]:.2f} s, position {p} is "
+                f"{self.zones.distance[i]:.2f} m from the obstacle at {o} (voxel centre); "
+                f"with the uncertainty model m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} "
+                f"m, memory {u.memory_s:g} s, Delta={c.delta:g} and a {max(c.semi_axes):g} m "
+                f"robot the path needs {at_rest:.2f} m of clearance even at rest "
+                f"({need:.2f} m at v_floor {c.v_floor:g} m/s); "
+                f"{int(self.collision.sum())} grid nodes are closer")
 
 
 def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
@@ -115,20 +126,22 @@ def assess(trajectory: Trajectory, tau: FloatArray, safety: Safety,
     if position is None or velocity is None:
         position, velocity, _ = trajectory.evaluate(tau)
     p, d1 = position, velocity
-    margin = max(2.0, safety.braking.d_th)
+    reach = reach_of(safety.braking, safety.uncertainty, safety.chance)
+    margin = max(2.0, reach * (1.0 + 1e-9) + 1e-9)
     p = np.ascontiguousarray(p, dtype=float)
     bounds = safety.bounds if safety.bounds is not None else safety.map.bounds
     # (a writable copy: the kernel is compiled for writable arrays)
     box = _NO_BOX if bounds is None else np.array(bounds, dtype=float)
     unknown = safety.chance.v_floor if safety.unknown_speed is None else safety.unknown_speed
     distance, obstacle, flags, values, starts, ends = kernels().assess_path(
-        p, d1, *safety.map.query_args(p, margin), safety.braking.d_th,
+        p, d1, *safety.map.query_args(p, margin), safety.braking.d_th, safety.braking.risk,
         horizon_of(safety.braking), *kernel_args(safety.uncertainty, safety.chance),
         float(safety.uncertainty.memory_s),
-        max(safety.braking.d_th, max(safety.chance.semi_axes)), box[0], box[1],
+        max(reach, max(safety.chance.semi_axes)), box[0], box[1],
         float(unknown))
     mask, infeasible, approach, collision, outside = flags
     limit, unclamped, limits = values
     zones = zones_from(tau, mask, starts, ends, distance, obstacle, safety.braking)
     chance = SpeedLimits(limit, unclamped, infeasible, safety.chance.v_floor)
-    return Assessment(limits, zones, chance, collision, outside, p, approach)
+    return Assessment(limits, zones, chance, collision, outside, p, approach,
+                      safety.uncertainty, safety.chance)

@@ -79,7 +79,8 @@ class ExperimentConfig:
         rate_hz: setpoint streaming rate.
         settle_s: flight continues this long after the trajectory's end.
         smoothness / dtau / map_resolution: ROTA's lambda, grid step, voxel size.
-        d_th: ROTA's braking-zone distance threshold (None: ROTA's default, 1 m).
+        d_th: ROTA's braking zones by the paper's fixed threshold (m; Eq. 6 alone).
+            None: ROTA's default, braking zones follow the risk.
         memories: the memory times T (s) of the ROTA arms; 0 is the paper's ROTA.
         uniform: also fly the uniform slow-down matched to each ROTA arm.
         errors: the estimation-error models; every arm flies under each.
@@ -205,7 +206,8 @@ def run_task(config: ExperimentConfig, density_index: int, trials: Sequence[int]
     out: dict = {"density_index": density_index, "trials": list(trials), "speeds": {}}
     prep_time = time.perf_counter() - t_prep
     sim_time = 0.0
-    braking = BrakingParams() if cfg.d_th is None else BrakingParams(d_th=cfg.d_th)
+    braking = (BrakingParams() if cfg.d_th is None
+               else BrakingParams(d_th=cfg.d_th, risk=False))
     arms = cfg.arms
     for vi, v_max in enumerate(cfg.speeds):
         t0 = time.perf_counter()

@@ -65,7 +65,8 @@ def _common(p: argparse.ArgumentParser, d: ExperimentConfig) -> None:
                    help="dynamics: calibrated to PX4's SIH quadrotor (default) or the idealised "
                         "point mass")
     p.add_argument("--d-th", type=float, default=None,
-                   help="ROTA braking threshold (m; default: ROTA's 1 m) - sensitivity only")
+                   help="ROTA's braking zones by the paper's fixed threshold (m) instead of by "
+                        "the risk (default) - sensitivity only")
     p.add_argument("--rejected", choices=("exclude", "fallback"), default=d.rejected,
                    help="trials whose path ROTA rejects: leave out of every arm (default) or "
                         "fly ROTA's fallback timing")

@@ -14,6 +14,8 @@ from rota.errors import InputError
 from rota.voxelmap import VoxelMap
 
 RES = 0.1
+#: The paper's Eq. 6 (fixed 1 m threshold, no risk): the mechanics tested below.
+PAPER = BrakingParams(d_th=1.0, risk=False)
 ORIGIN = np.full(3, -RES / 2)  # voxel centres on multiples of RES
 
 
@@ -30,7 +32,7 @@ def straight_path(x0: float, x1: float, n: int = 201) -> tuple[np.ndarray, ...]:
     return tau, p, v
 
 
-def zones(obstacles: np.ndarray, tau, p, v, params: BrakingParams | None = None):
+def zones(obstacles: np.ndarray, tau, p, v, params: BrakingParams = PAPER):
     m = VoxelMap.from_points(obstacles, RES, ORIGIN)
     d, o = m.nearest(p)
     return find_braking_zones(tau, p, v, d, o, params)
@@ -74,6 +76,8 @@ def test_pillar_behind_the_vehicle_changes_nothing() -> None:
 def test_empty_map_no_braking() -> None:
     tau, p, v = straight_path(0.0, 3.0, 31)
     bz = find_braking_zones(tau, p, v, np.full(31, np.inf), np.full((31, 3), np.nan))
+    assert not bz.mask.any()
+    bz = find_braking_zones(tau, p, v, np.full(31, np.inf), np.full((31, 3), np.nan), PAPER)
     assert not bz.mask.any() and bz.intervals == () and not bz.refined_mask.any()
 
 
@@ -95,7 +99,7 @@ def test_refinement_drops_short_and_merges_gaps() -> None:
     # T = 10: drop <= min(1.0, 0.5) = 0.5, merge gaps <= min(0.5, 0.25) = 0.25
     on = [(1.0, 1.3), (3.0, 4.0), (4.2, 5.0), (7.0, 8.0), (9.0, 9.3), (9.5, 9.8)]
     tau, p, v, d, o, close = _synthetic(on)
-    bz = find_braking_zones(tau, p, v, d, o)
+    bz = find_braking_zones(tau, p, v, d, o, PAPER)
     np.testing.assert_array_equal(bz.mask, close)  # raw mask keeps everything
     assert len(bz.raw_intervals) == 6
     got = [(round(a, 6), round(b, 6)) for a, b in bz.intervals]
@@ -114,11 +118,12 @@ def test_refinement_thresholds_scale_with_short_trajectories() -> None:
     # T = 2: drop <= 0.2, merge <= 0.1
     on = [(0.2, 0.3), (0.6, 0.9), (1.0, 1.2), (1.5, 1.9)]
     tau, p, v, d, o, _ = _synthetic(on, t_end=2.0, dt=0.05)
-    bz = find_braking_zones(tau, p, v, d, o)
+    bz = find_braking_zones(tau, p, v, d, o, PAPER)
     got = [(round(a, 6), round(b, 6)) for a, b in bz.intervals]
     assert got == [(0.6, 1.2), (1.5, 1.9)]
     # explicit parameters override the defaults
-    bz2 = find_braking_zones(tau, p, v, d, o, BrakingParams(min_interval=0.0, merge_gap=0.0))
+    bz2 = find_braking_zones(tau, p, v, d, o, BrakingParams(d_th=1.0, risk=False, min_interval=0.0,
+                                                           merge_gap=0.0))
     assert len(bz2.intervals) == 4
 
 
@@ -130,16 +135,17 @@ def test_refine_intervals_unit() -> None:
 
 def test_horizon_length_limits_checked_path() -> None:
     tau, p, v, d, o, close = _synthetic([(0.0, 10.0)])
-    bz = find_braking_zones(tau, p, v, d, o, BrakingParams(horizon_length=3.0))
+    bz = find_braking_zones(tau, p, v, d, o, BrakingParams(d_th=1.0, risk=False,
+                                                                horizon_length=3.0))
     np.testing.assert_array_equal(bz.mask, tau <= 3.0 + 1e-9)
-    assert find_braking_zones(tau, p, v, d, o).mask.all()
+    assert find_braking_zones(tau, p, v, d, o, PAPER).mask.all()
 
 
 def test_d_th_threshold() -> None:
     tau, p, v = straight_path(0.0, 10.0)
-    small = zones(pillar(5.0, 0.3), tau, p, v, BrakingParams(d_th=0.3 + 1e-9))
+    small = zones(pillar(5.0, 0.3), tau, p, v, BrakingParams(d_th=0.3 + 1e-9, risk=False))
     assert small.mask.sum() == 1  # only the closest approach (distance exactly 0.3)
-    none = zones(pillar(5.0, 0.3), tau, p, v, BrakingParams(d_th=0.29))
+    none = zones(pillar(5.0, 0.3), tau, p, v, BrakingParams(d_th=0.29, risk=False))
     assert not none.mask.any()
 
 
@@ -159,7 +165,7 @@ def test_mask_is_exactly_eq6(dists: list[float], d_th: float, seed: int) -> None
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     d = np.array(dists)
     o = p + d[:, None] * direction
-    bz = find_braking_zones(tau, p, v, d, o, BrakingParams(d_th=d_th))
+    bz = find_braking_zones(tau, p, v, d, o, BrakingParams(d_th=d_th, risk=False))
     want = (d <= d_th) & (np.einsum("ij,ij->i", o - p, v) >= 0)
     np.testing.assert_array_equal(bz.mask, want)
     # refined intervals are sorted, disjoint, longer than min_interval, gaps > merge_gap
@@ -196,7 +202,8 @@ def test_bad_input_names_field(change: dict, field: str) -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "field"),
-    [({"d_th": -1.0}, "d_th"), ({"d_th": math.inf}, "d_th"), ({"merge_gap": -0.1}, "merge_gap"),
+    [({"d_th": -1.0}, "d_th"), ({"risk": 1}, "risk"), ({"d_th": math.inf}, "d_th"),
+     ({"merge_gap": -0.1}, "merge_gap"),
      ({"min_interval": "x"}, "min_interval"), ({"horizon_length": math.nan}, "horizon_length")],
 )
 def test_bad_params(kwargs: dict, field: str) -> None:

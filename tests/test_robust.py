@@ -42,7 +42,7 @@ def safety(vmap: VoxelMap, m: float = 0.2, delta: float = 1e-4, **kw) -> Safety:
     return Safety(map=vmap, uncertainty=UncertaintyModel(m=m, b=-0.1),
                   chance=ChanceParams(delta=delta, semi_axes=(0.15, 0.15, 0.15),
                                       obstacle_std=(0.015,) * 3, v_floor=0.3, v_max=3.0),
-                  braking=BrakingParams(d_th=1.0), **kw)
+                  braking=BrakingParams(d_th=1.0, risk=False), **kw)  # paper Eq. 6
 
 
 def run(traj, safe=None, **kw):

@@ -7,6 +7,7 @@ from rota.kernels.chance import (
     braking_points,
     chance_limits,
     memory_caps,
+    risky_nodes,
 )
 from rota.kernels.ipm import ipm_solve
 from rota.kernels.nearest import bricks_build, bricks_query
@@ -25,4 +26,4 @@ from rota.kernels.rounds import one_round
 __all__ = ["assess_path", "audit", "boundary_nodes", "braking_points", "bricks_build",
            "bricks_query", "bspline_pieces", "build_rows", "chance_limits", "eval_pieces",
            "forward_reachable", "grid_path", "ipm_solve", "memory_caps", "one_round", "passes",
-           "piece_edges", "sample", "tighten", "time_map"]
+           "piece_edges", "risky_nodes", "sample", "tighten", "time_map"]

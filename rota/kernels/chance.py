@@ -162,12 +162,15 @@ def memory_caps(arclength, limit, memory_s, out):
 
 
 @njit
-def braking_points(pos, vel, dist, obstacle, d_th, horizon, mask):
-    """Braking points (paper Eq. 6) into ``mask``: an obstacle within ``d_th`` and not
-    behind (``(o - p) . v >= 0``), within ``horizon`` metres of path from the
+def braking_points(pos, vel, dist, obstacle, d_th, risky, horizon, mask):
+    """Braking points (paper Eq. 6, threshold replaced by the risk) into ``mask``: an
+    obstacle not behind (``(o - p) . v >= 0``) that is within ``d_th`` or whose chance
+    limit at the node is below ``v_max`` (``risky[q]``; an empty ``risky``: the
+    distance alone, the paper's Eq. 6), within ``horizon`` metres of path from the
     first sample. Returns ``(starts, ends)`` of the runs of braking points
     (inclusive)."""
     n = pos.shape[0]
+    use_risk = risky.shape[0] == n
     length = 0.0
     runs = 0
     for q in range(n):
@@ -180,7 +183,8 @@ def braking_points(pos, vel, dist, obstacle, d_th, horizon, mask):
         if has:
             for k in range(3):
                 ahead += (obstacle[q, k] - pos[q, k]) * vel[q, k]
-        mask[q] = has and dist[q] <= d_th and ahead >= 0.0 and length <= horizon
+        close = dist[q] <= d_th or (use_risk and risky[q])
+        mask[q] = has and close and ahead >= 0.0 and length <= horizon
         if mask[q] and (q == 0 or not mask[q - 1]):
             runs += 1
     starts = np.empty(runs, np.int64)
@@ -196,12 +200,20 @@ def braking_points(pos, vel, dist, obstacle, d_th, horizon, mask):
 
 
 @njit
-def assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot, obs_var, z,
+def risky_nodes(limit, infeasible, v_max, out):
+    """Nodes whose chance limit falls below ``v_max`` (or that have none) into ``out``."""
+    for q in range(limit.shape[0]):
+        out[q] = infeasible[q] or limit[q] < v_max
+
+
+@njit
+def assess_nodes(pos, vel, dist, obstacle, d_th, risk, horizon, inv_axes, point_robot, obs_var, z,
                  m, b, fl, per_axis, v_floor, v_max, memory_s, near, lo, hi, unknown, flags,
                  values):
     """The map seen from the path on the grid, in one call (:func:`rota.robust.assess`).
 
-    :func:`braking_points` and :func:`chance_limits`; every node's speed limit: the
+    :func:`chance_limits` and :func:`braking_points` (with ``risk``: also where the
+    chance limit falls below ``v_max``); every node's speed limit: the
     chance limit at braking points, ``inf`` elsewhere, then held over the path
     before each braking point for ``memory_s`` (:func:`memory_caps`), then at most
     ``unknown`` outside the box ``lo``-``hi`` (``lo`` empty: no box).
@@ -215,9 +227,12 @@ def assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot,
     mask, infeasible, approach, collision, outside = (flags[0], flags[1], flags[2],
                                                       flags[3], flags[4])
     limit, unclamped, node_limit = values[0], values[1], values[2]
-    starts, ends = braking_points(pos, vel, dist, obstacle, d_th, horizon, mask)
     chance_limits(pos, vel, obstacle, inv_axes, point_robot, obs_var, z, m, b, fl, per_axis,
                   v_floor, v_max, limit, unclamped, infeasible)
+    risky = np.empty(n if risk else 0, np.bool_)
+    if risk:
+        risky_nodes(limit, infeasible, v_max, risky)
+    starts, ends = braking_points(pos, vel, dist, obstacle, d_th, risky, horizon, mask)
     raw = np.empty(n)
     for q in range(n):
         raw[q] = limit[q] if mask[q] else np.inf
@@ -244,7 +259,8 @@ def assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot,
 
 
 @njit
-def assess_path(pos, vel, origin, res, lo, dims, size, start, pts, box, bound2, d_th, horizon,
+def assess_path(pos, vel, origin, res, lo, dims, size, start, pts, box, bound2, d_th, risk,
+                horizon,
                 inv_axes, point_robot, obs_var, z, m, b, fl, per_axis, v_floor, v_max,
                 memory_s, near, box_lo, box_hi, unknown):
     """The nearest occupied centre to every node (:func:`rota.kernels.nearest.bricks_query`
@@ -257,7 +273,7 @@ def assess_path(pos, vel, origin, res, lo, dims, size, start, pts, box, bound2, 
     bricks_query(pos, origin, res, lo, dims, size, start, pts, box, bound2, dist, obstacle)
     flags = np.empty((5, n), np.bool_)
     values = np.empty((3, n))
-    starts, ends = assess_nodes(pos, vel, dist, obstacle, d_th, horizon, inv_axes, point_robot,
-                                obs_var, z, m, b, fl, per_axis, v_floor, v_max, memory_s, near,
-                                box_lo, box_hi, unknown, flags, values)
+    starts, ends = assess_nodes(pos, vel, dist, obstacle, d_th, risk, horizon, inv_axes,
+                                point_robot, obs_var, z, m, b, fl, per_axis, v_floor, v_max,
+                                memory_s, near, box_lo, box_hi, unknown, flags, values)
     return dist, obstacle, flags, values, starts, ends
