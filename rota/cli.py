@@ -199,12 +199,26 @@ class Progress:
         self._thread.start()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type | None, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
         end = "\n" if self._tty else ""
-        print(f"{end}rota retime: {self.what}: done in {time.monotonic() - self._t0:.1f} s",
-              file=sys.stderr, flush=True)
+        if kind is None:
+            print(f"{end}rota retime: {self.what}: done in {time.monotonic() - self._t0:.1f} s",
+                  file=sys.stderr, flush=True)
+        elif end:
+            print(file=sys.stderr, flush=True)
+
+
+def check_setpoints(args: argparse.Namespace, duration: float) -> None:
+    """The cap on setpoints, now that the re-timed duration is known."""
+    if args.rate is None:
+        return
+    count = math.floor(duration * args.rate + 1e-9) + 2 if math.isfinite(duration) else math.inf
+    if count > args.max_points:
+        raise InputError("--rate", f"{count:.0f} setpoints ({duration:.1f} s re-timed at "
+                         f"{args.rate:g} Hz) is over the cap of {args.max_points} "
+                         "(--max-points N to allow more, or a lower --rate); nothing written")
 
 
 def cmd_retime(args: argparse.Namespace) -> int:
@@ -218,24 +232,35 @@ def cmd_retime(args: argparse.Namespace) -> int:
             result = retime(inp)
     else:
         result = retime(inp)
+    check_setpoints(args, result.duration)
     out = result_to_dict(result, msg, rate_hz=args.rate)
     try:
-        dump(out, args.output)
+        text = json.dumps(out, indent=1, allow_nan=False) + "\n"
     except ValueError:  # NaN or inf in the result: never write invalid JSON
         raise InputError("trajectory", "the re-timed result is not finite (values too "
                          "large?); nothing written") from None
+    # with -o - the result is standard output; what is said about it goes to stderr
+    say = sys.stderr if args.output == "-" else sys.stdout
+    if args.output == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        Path(args.output).write_text(text)
     print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
-          f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""))
+          f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""),
+          file=say)
     for w in result.warnings:
-        print(f"warning: {w}")
+        print(f"warning: {w}", file=say)
     zones = result.extras.get("intervals", ())
     if inp.safety is not None:
-        print(f"braking zones (trajectory time): {[tuple(round(x, 2) for x in z) for z in zones]}")
+        shown = ", ".join(f"{float(a):.2f}-{float(b):.2f}" for a, b in zones) or "none"
+        print(f"braking zones (trajectory time, s): {shown}", file=say)
     if args.plot:
         from rota.plot import plot_result
 
         obstacles = None if inp.safety is None else inp.safety.map.occupied
-        print(f"plot: {plot_result(result, inp.limits, args.plot, obstacles, title=msg.id)}")
+        print(f"plot: {plot_result(result, inp.limits, args.plot, obstacles, title=msg.id)}",
+              file=say)
     if result.status == REJECTED:
         return EXIT_REJECTED
     return EXIT_OK if result.ok else EXIT_FALLBACK
@@ -289,13 +314,15 @@ def make_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("retime", help="re-time a trajectory message (JSON)")
     p.add_argument("input", help="rota/trajectory JSON file")
-    p.add_argument("-o", "--output", required=True, help="where to write the rota/result JSON")
+    p.add_argument("-o", "--output", required=True,
+                   help="where to write the rota/result JSON (- for standard output)")
     p.add_argument("--plot", help="also write a plot (PNG/SVG/PDF)")
     p.add_argument("--rate", type=float, default=None,
                    help="also write setpoints sampled at this rate (Hz)")
     p.add_argument("--max-points", type=int, default=MAX_POINTS,
                    help=f"refuse larger work: trajectory points, grid nodes (duration / "
-                   f"dtau) or setpoints (duration x rate) (default {MAX_POINTS})")
+                   f"dtau) or setpoints (re-timed duration x rate; checked again after "
+                   f"the solve) (default {MAX_POINTS})")
     add_retime_options(p)
     add_safety_options(p)
     p.set_defaults(func=cmd_retime)
