@@ -69,9 +69,37 @@ _MAVLINK_URL = re.compile(r"^((udp|udpin|udpout|tcp|tcpin|tcpout)://[^/:\s]*:\d{
                           r"|(serial|serial_flowcontrol):///[^\s:]+(:\d+)?)$")
 
 
+def check_directory(path: str, setting: str) -> None:
+    """``path`` is a directory this user can write, or can be created (its nearest
+    existing parent is writable); a ConfigError naming ``setting`` otherwise."""
+    target = Path(path).absolute()
+    probe = target
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"{setting}: {path}: cannot be created ({probe} is not a directory)")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        who = f"user {_user()}"
+        what = "not writable" if probe == target else f"cannot be created ({probe} is not " \
+            "writable)"
+        raise ConfigError(f"{setting}: {path}: {what} by {who} (the systemd unit creates it "
+                          "with StateDirectory=; to run by hand, set it to a directory you "
+                          "can write)")
+
+
+def _user() -> str:
+    import pwd
+
+    try:
+        return pwd.getpwuid(os.getuid()).pw_name
+    except KeyError:
+        return str(os.getuid())
+
+
 def check_environment(cfg: Config) -> None:
     """Checks beyond the file's own: the Zenoh configuration file loads, the
-    MAVLink URL is one MAVSDK understands. Raises ConfigError naming the setting."""
+    MAVLink URL is one MAVSDK understands, the state and record directories can be
+    written by this user. Raises ConfigError naming the setting."""
     if not _MAVLINK_URL.match(cfg.mavlink.url):
         raise ConfigError(f"[mavlink] url: {cfg.mavlink.url!r} is not a MAVSDK connection URL "
                           "(udpin://HOST:PORT, tcpout://HOST:PORT, serial:///dev/ttyAMA0:921600)")
@@ -80,6 +108,10 @@ def check_environment(cfg: Config) -> None:
         path = cfg.zenoh.config_file
         if not os.path.isfile(path):
             raise ConfigError(f"[zenoh] config_file: {path}: no such file")
+    check_directory(cfg.service.state_dir, "[service] state_dir")
+    if cfg.record.enabled:
+        where = "[record] dir" if cfg.record.dir else "[record] dir (<state_dir>/records)"
+        check_directory(cfg.record.dir or os.path.join(cfg.service.state_dir, "records"), where)
     from companion.security import check_exposure, zenoh_config
 
     for problem in check_exposure(cfg, zenoh_config(cfg)):  # refuses unless insecure
@@ -98,6 +130,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 cfg.zenoh.config_file
             raise RunError(f"cannot open Zenoh ({endpoints}): {str(exc).split(' at ')[0]} "
                            "(is the port in use? zenohd listens on 7447 too)") from None
+        if isinstance(exc, OSError) and exc.filename:
+            raise RunError(f"{exc.filename}: {exc.strerror}") from None
         raise
     return 0
 

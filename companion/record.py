@@ -286,4 +286,10 @@ def read(paths: Iterable[str | Path],
                     log.warning("%s: cut short after %d messages (%s)", path, len(messages),
                                 type(exc).__name__)
         for _, channel, message in messages:
-            yield channel.topic[1:], message.log_time / 1e9, json.loads(message.data)
+            if channel.message_encoding != "json":
+                continue  # not one of ours (a foreign MCAP)
+            try:
+                data = json.loads(message.data)
+            except ValueError:
+                continue
+            yield channel.topic[1:], message.log_time / 1e9, data

@@ -246,9 +246,12 @@ def cmd_retime(args: argparse.Namespace) -> int:
         sys.stdout.flush()
     else:
         Path(args.output).write_text(text)
-    print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
-          f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""),
-          file=say)
+    if result.status == REJECTED:  # its time mapping is a stand-in, never to be flown
+        print(f"{msg.id or args.input}: rejected, not to be flown: {result.message}", file=say)
+    else:
+        print(f"{msg.id or args.input}: {result.status}; duration "
+              f"{msg.trajectory.duration:.3f} s -> {result.duration:.3f} s"
+              + (f" ({result.message})" if result.message else ""), file=say)
     for w in result.warnings:
         print(f"warning: {w}", file=say)
     zones = result.extras.get("intervals", ())
