@@ -23,8 +23,10 @@ import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from companion.config import Config, ConfigError, load
+if TYPE_CHECKING:  # imported where used: the CLI starts (and the demo speaks) sooner
+    from companion.config import Config
 
 _SYSLOG = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
            logging.CRITICAL: 2}
@@ -72,6 +74,8 @@ _MAVLINK_URL = re.compile(r"^((udp|udpin|udpout|tcp|tcpin|tcpout)://[^/:\s]*:\d{
 def check_directory(path: str, setting: str) -> None:
     """``path`` is a directory this user can write, or can be created (its nearest
     existing parent is writable); a ConfigError naming ``setting`` otherwise."""
+    from companion.config import ConfigError
+
     target = Path(path).absolute()
     probe = target
     while not probe.exists() and probe != probe.parent:
@@ -100,6 +104,8 @@ def check_environment(cfg: Config) -> None:
     """Checks beyond the file's own: the Zenoh configuration file loads, the
     MAVLink URL is one MAVSDK understands, the state and record directories can be
     written by this user. Raises ConfigError naming the setting."""
+    from companion.config import ConfigError
+
     if not _MAVLINK_URL.match(cfg.mavlink.url):
         raise ConfigError(f"[mavlink] url: {cfg.mavlink.url!r} is not a MAVSDK connection URL "
                           "(udpin://HOST:PORT, tcpout://HOST:PORT, serial:///dev/ttyAMA0:921600)")
@@ -119,6 +125,8 @@ def check_environment(cfg: Config) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from companion.config import load
+
     cfg = load(args.config)
     check_environment(cfg)
     setup_logging(cfg.service.log_level)
@@ -151,6 +159,8 @@ def _positive(args: argparse.Namespace, *names: str) -> None:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from companion.config import load
+
     cfg = load(args.config)
     check_environment(cfg)
     print(json.dumps(cfg.to_dict(), indent=1))
@@ -291,6 +301,10 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
+    if args.command == "demo":  # first contact: a word before the imports (seconds)
+        print("demo: starting: loading the flight software ...", flush=True)
+    from companion.config import ConfigError
+
     try:
         return int(args.func(args))
     except ConfigError as exc:
@@ -302,6 +316,10 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:  # fuzz needs the dev extra (hypothesis)
+        print(f"rota-companion {args.command}: needs {exc.name}, which is not installed "
+              "(pip install 'rota-companion[dev]')", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"rota-companion {args.command}: interrupted", file=sys.stderr)
         return 130

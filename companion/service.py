@@ -140,7 +140,12 @@ class Service:
         logging.getLogger("rota").addHandler(self._log_to_record)
         self.recorder.put("config", self.cfg.to_dict())
         self._open_zenoh(z)
-        warm, _ = await asyncio.gather(self.retimer.start(), self.decoder.start())
+        starting = asyncio.create_task(self.notifier.starting(
+            "compiling or loading the solver"))
+        try:
+            warm, _ = await asyncio.gather(self.retimer.start(), self.decoder.start())
+        finally:
+            starting.cancel()
         log.info("re-time worker warm (solver compiled or loaded in %.1f s)", warm)
         self.recorder.start()
         # What start-up made (modules, configuration, Zenoh and MAVSDK objects) lives
