@@ -37,6 +37,9 @@ from sitl.process import SimProcess, SimReport
 from sitl.world import World, get_world
 
 log = logging.getLogger("rota.demo")
+#: How long the demo waits for the service to be ready: a first run compiles the solver
+#: (28-36 s on a 2-core x86 machine, minutes on a slow board or a busy machine).
+READY_S = 600.0
 #: When the demo began (run_demo sets it): its progress lines say the time since.
 _PROGRESS: dict[str, float | None] = {"t0": None}
 
@@ -107,14 +110,14 @@ async def running(cfg: Config) -> AsyncIterator[tuple[Service, GroundStation]]:
 
 
 async def take_off(gs: GroundStation, world: World | None = None,
-                   home: np.ndarray | None = None) -> None:
+                   home: np.ndarray | None = None, ready_s: float = 60.0) -> None:
     """Wait for a healthy vehicle, publish the world's map, arm, take off and wait
     until the vehicle hovers; every step waits for the state to confirm it."""
     say("flight service starting: compiling or loading the solver (a first run compiles "
         "for about 30 s; later runs load it in a second)")
     tick = asyncio.create_task(_ticking("still starting"))
     try:
-        await gs.wait_for(lambda s: s["state"] == "ready", 60, "the vehicle to be ready")
+        await gs.wait_for(lambda s: s["state"] == "ready", ready_s, "the vehicle to be ready")
     finally:
         tick.cancel()
     say("service ready, vehicle healthy: sending the map, arming, taking off")
@@ -220,7 +223,8 @@ REPLAN_ATTEMPTS = 3
 async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: float,
                       a_max: float, replans: int, timeout_s: float = 120.0) -> dict[str, Any]:
     """Take off, fly the planner's trajectory with ``replans`` replans on the way."""
-    await take_off(gs, world, home)
+    # a first run compiles the solver: minutes on a slow board (the demo says so)
+    await take_off(gs, world, home, ready_s=READY_S)
     here = await start_holding(gs) + home
     goal = np.array([world.goal[0], world.goal[1], here[2]])
     first = await plan_async(world, v_max=speed, a_max=a_max, start=here, goal=goal)
