@@ -172,7 +172,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from companion.demo import run_demo
 
     setup_logging("WARNING" if not args.verbose else "INFO")
-    summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed, px4_build=args.px4)
+    try:
+        summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed,
+                           px4_build=args.px4)
+    except TimeoutError as exc:  # a step of the flight did not happen in time
+        raise RunError(f"the demo did not complete: {exc}") from None
     return 0 if summary["reached_goal"] and not summary["collisions"] else 1
 
 
