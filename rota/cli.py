@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
 import threading
 import time
@@ -210,6 +212,46 @@ class Progress:
             print(file=sys.stderr, flush=True)
 
 
+class CtrlC:
+    """While a re-time runs. Ctrl-C takes effect when the compiled step that runs
+    returns (:mod:`rota.interrupt`), which on a long solve may take a while: if it
+    has not within half a second, say so; a second Ctrl-C stops at once (exit
+    130: nothing has been written yet). Watches the signal through Python's
+    wakeup fd, which the C-level handler writes while the main thread computes."""
+
+    def __enter__(self) -> CtrlC:
+        self._done, self._thread, self._old = threading.Event(), None, None
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._w, False)
+        try:
+            self._old = signal.set_wakeup_fd(self._w, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread
+            return self
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+        return self
+
+    def _watch(self) -> None:
+        seen = 0
+        while data := os.read(self._r, 64):
+            seen += data.count(signal.SIGINT)
+            if seen >= 2:
+                print("rota retime: interrupted", file=sys.stderr, flush=True)
+                os._exit(130)
+            if seen == 1 and not self._done.wait(0.5):
+                print("rota retime: Ctrl-C: stopping when the running solver step returns "
+                      "(Ctrl-C again: now)", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        if self._old is not None:
+            signal.set_wakeup_fd(self._old)
+        os.close(self._w)  # the watcher reads the end of the pipe and returns
+        if self._thread is not None:
+            self._thread.join()
+        os.close(self._r)
+
+
 def check_setpoints(args: argparse.Namespace, duration: float) -> None:
     """The cap on setpoints, now that the re-timed duration is known."""
     if args.rate is None:
@@ -227,11 +269,12 @@ def cmd_retime(args: argparse.Namespace) -> int:
     inp = build_input(args, msg.trajectory)
     lo, hi = msg.trajectory.domain
     nodes = int((hi - lo) / args.dtau)
-    if nodes > PROGRESS_NODES:
-        with Progress(f"re-timing {_size(msg.trajectory)} points on {nodes} grid nodes"):
+    with CtrlC():
+        if nodes > PROGRESS_NODES:
+            with Progress(f"re-timing {_size(msg.trajectory)} points on {nodes} grid nodes"):
+                result = retime(inp)
+        else:
             result = retime(inp)
-    else:
-        result = retime(inp)
     check_setpoints(args, result.duration)
     out = result_to_dict(result, msg, rate_hz=args.rate)
     try:

@@ -110,7 +110,8 @@ def _start(command: list[str]) -> subprocess.Popen:
 
 
 def _interrupted_once(err: str, tool: str) -> None:
-    lines = [ln for ln in err.splitlines() if ln.strip() and "re-timing" not in ln]
+    lines = [ln for ln in err.splitlines() if ln.strip() and "re-timing" not in ln
+             and "Ctrl-C: stopping when" not in ln]  # progress, and the note on a long step
     assert len(lines) == 1 and lines[0].endswith("interrupted"), err[-2000:]
     assert lines[0].startswith(tool), lines
 
@@ -158,3 +159,23 @@ def test_every_cli_exits_130_while_it_starts_or_runs(tool, args):
             continue  # it had finished
         assert code == 130, (tool, moment, code, err[-2000:])
         _interrupted_once(err, tool)
+
+
+def test_rota_retime_second_ctrl_c_stops_at_once(long_path, tmp_path):
+    """A long step: the first Ctrl-C is noted (it takes effect when the step
+    returns), the second stops at once."""
+    out = tmp_path / "r.json"
+    proc = _start(_cli("rota") + ["retime", str(long_path), "-o", str(out), "--dtau", "0.002",
+                                  "--max-points", "1000000"])  # 250k nodes: long rounds
+    line = proc.stderr.readline()  # the progress line: the solve has begun
+    assert "re-timing" in line, line
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    start = time.monotonic()
+    code, _, err = _finish(proc, 0.0)
+    assert code == 130, err
+    assert time.monotonic() - start < 5.0  # not the rest of a round (tens of seconds)
+    _interrupted_once(err, "rota")
+    assert not out.exists()
