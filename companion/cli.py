@@ -23,8 +23,10 @@ import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from companion.config import Config, ConfigError, load
+if TYPE_CHECKING:  # imported where used: the CLI starts (and the demo speaks) sooner
+    from companion.config import Config
 
 _SYSLOG = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
            logging.CRITICAL: 2}
@@ -69,9 +71,41 @@ _MAVLINK_URL = re.compile(r"^((udp|udpin|udpout|tcp|tcpin|tcpout)://[^/:\s]*:\d{
                           r"|(serial|serial_flowcontrol):///[^\s:]+(:\d+)?)$")
 
 
+def check_directory(path: str, setting: str) -> None:
+    """``path`` is a directory this user can write, or can be created (its nearest
+    existing parent is writable); a ConfigError naming ``setting`` otherwise."""
+    from companion.config import ConfigError
+
+    target = Path(path).absolute()
+    probe = target
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"{setting}: {path}: cannot be created ({probe} is not a directory)")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        who = f"user {_user()}"
+        what = "not writable" if probe == target else f"cannot be created ({probe} is not " \
+            "writable)"
+        raise ConfigError(f"{setting}: {path}: {what} by {who} (the systemd unit creates it "
+                          "with StateDirectory=; to run by hand, set it to a directory you "
+                          "can write)")
+
+
+def _user() -> str:
+    import pwd
+
+    try:
+        return pwd.getpwuid(os.getuid()).pw_name
+    except KeyError:
+        return str(os.getuid())
+
+
 def check_environment(cfg: Config) -> None:
     """Checks beyond the file's own: the Zenoh configuration file loads, the
-    MAVLink URL is one MAVSDK understands. Raises ConfigError naming the setting."""
+    MAVLink URL is one MAVSDK understands, the state and record directories can be
+    written by this user. Raises ConfigError naming the setting."""
+    from companion.config import ConfigError
+
     if not _MAVLINK_URL.match(cfg.mavlink.url):
         raise ConfigError(f"[mavlink] url: {cfg.mavlink.url!r} is not a MAVSDK connection URL "
                           "(udpin://HOST:PORT, tcpout://HOST:PORT, serial:///dev/ttyAMA0:921600)")
@@ -80,6 +114,10 @@ def check_environment(cfg: Config) -> None:
         path = cfg.zenoh.config_file
         if not os.path.isfile(path):
             raise ConfigError(f"[zenoh] config_file: {path}: no such file")
+    check_directory(cfg.service.state_dir, "[service] state_dir")
+    if cfg.record.enabled:
+        where = "[record] dir" if cfg.record.dir else "[record] dir (<state_dir>/records)"
+        check_directory(cfg.record.dir or os.path.join(cfg.service.state_dir, "records"), where)
     from companion.security import check_exposure, zenoh_config
 
     for problem in check_exposure(cfg, zenoh_config(cfg)):  # refuses unless insecure
@@ -87,6 +125,8 @@ def check_environment(cfg: Config) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from companion.config import load
+
     cfg = load(args.config)
     check_environment(cfg)
     # records, logs and the estimator's state are the operator's alone (files 0600,
@@ -107,6 +147,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 cfg.zenoh.config_file
             raise RunError(f"cannot open Zenoh ({endpoints}): {str(exc).split(' at ')[0]} "
                            "(is the port in use? zenohd listens on 7447 too)") from None
+        if isinstance(exc, OSError) and exc.filename:
+            raise RunError(f"{exc.filename}: {exc.strerror}") from None
         raise
     return 0
 
@@ -136,6 +178,8 @@ def _positive(args: argparse.Namespace, *names: str) -> None:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from companion.config import load
+
     cfg = load(args.config)
     check_environment(cfg)
     print(json.dumps(cfg.to_dict(), indent=1))
@@ -147,7 +191,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from companion.demo import run_demo
 
     setup_logging("WARNING" if not args.verbose else "INFO")
-    summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed, px4_build=args.px4)
+    try:
+        summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed,
+                           px4_build=args.px4)
+    except TimeoutError as exc:  # a step of the flight did not happen in time
+        raise RunError(f"the demo did not complete: {exc}") from None
     return 0 if summary["reached_goal"] and not summary["collisions"] else 1
 
 
@@ -284,6 +332,10 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
+    if args.command == "demo":  # first contact: a word before the imports (seconds)
+        print("demo: starting: loading the flight software ...", flush=True)
+    from companion.config import ConfigError
+
     try:
         return int(args.func(args))
     except ConfigError as exc:
@@ -295,6 +347,10 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:  # fuzz needs the dev extra (hypothesis)
+        print(f"rota-companion {args.command}: needs {exc.name}, which is not installed "
+              "(pip install 'rota-companion[dev]')", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"rota-companion {args.command}: interrupted", file=sys.stderr)
         return 130

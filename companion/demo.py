@@ -36,6 +36,27 @@ from sitl.process import SimProcess, SimReport
 from sitl.world import World, get_world
 
 log = logging.getLogger("rota.demo")
+#: How long the demo waits for the service to be ready: a first run compiles the solver
+#: (28-36 s on a 2-core x86 machine, minutes on a slow board or a busy machine).
+READY_S = 600.0
+#: When the demo began (run_demo sets it): its progress lines say the time since.
+_PROGRESS: dict[str, float | None] = {"t0": None}
+
+
+def say(text: str) -> None:
+    """A progress line of the demo on stdout (only while :func:`run_demo` runs: the
+    end-to-end tests that fly the same steps stay quiet)."""
+    t0 = _PROGRESS["t0"]
+    if t0 is not None:
+        print(f"demo [{time.monotonic() - t0:5.1f} s] {text}", flush=True)
+
+
+async def _ticking(what: str, every_s: float = 10.0) -> None:
+    """Say ``what`` every ``every_s`` with the time spent: a long wait is not silence."""
+    start = time.monotonic()
+    while True:
+        await asyncio.sleep(every_s)
+        say(f"{what} ({time.monotonic() - start:.0f} s so far)")
 
 
 def free_tcp_port() -> int:
@@ -88,10 +109,17 @@ async def running(cfg: Config) -> AsyncIterator[tuple[Service, GroundStation]]:
 
 
 async def take_off(gs: GroundStation, world: World | None = None,
-                   home: np.ndarray | None = None) -> None:
+                   home: np.ndarray | None = None, ready_s: float = 60.0) -> None:
     """Wait for a healthy vehicle, publish the world's map, arm, take off and wait
     until the vehicle hovers; every step waits for the state to confirm it."""
-    await gs.wait_for(lambda s: s["state"] == "ready", 60, "the vehicle to be ready")
+    say("flight service starting: compiling or loading the solver (a first run compiles "
+        "for about 30 s; later runs load it in a second)")
+    tick = asyncio.create_task(_ticking("still starting"))
+    try:
+        await gs.wait_for(lambda s: s["state"] == "ready", ready_s, "the vehicle to be ready")
+    finally:
+        tick.cancel()
+    say("service ready, vehicle healthy: sending the map, arming, taking off")
     if world is not None and home is not None:
         # Encoded in the demo's worker process and sent from a thread: the message is
         # about 1 MB of JSON (50 ms of work that holds the GIL), and in the demo this
@@ -102,6 +130,7 @@ async def take_off(gs: GroundStation, world: World | None = None,
     await gs.command_confirmed("arm")
     await gs.command_confirmed("takeoff")
     await hovering(gs)
+    say("hovering: starting offboard and planning through the forest")
 
 
 async def hovering(gs: GroundStation, speed: float = 0.5, timeout_s: float = 20.0) -> None:
@@ -193,12 +222,14 @@ REPLAN_ATTEMPTS = 3
 async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: float,
                       a_max: float, replans: int, timeout_s: float = 120.0) -> dict[str, Any]:
     """Take off, fly the planner's trajectory with ``replans`` replans on the way."""
-    await take_off(gs, world, home)
+    # a first run compiles the solver: minutes on a slow board (the demo says so)
+    await take_off(gs, world, home, ready_s=READY_S)
     here = await start_holding(gs) + home
     goal = np.array([world.goal[0], world.goal[1], here[2]])
     first = await plan_async(world, v_max=speed, a_max=a_max, start=here, goal=goal)
     gs.publish("trajectory", trajectory_message(to_local(first, home), "plan-0"))
     await gs.wait_for(lambda s: s.get("command") == "plan", 10, "the plan to begin")
+    say(f"flying plan-0 ({first.duration:.1f} s as planned; re-timed by the service)")
     t_start = time.monotonic()
     planned = [first.duration]
     published = 1
@@ -216,6 +247,7 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
             new = await plan_async(world, v_max=speed, a_max=a_max, start=p, goal=goal,
                                    start_velocity=v, strict=False)
             sent = time.time()
+            say(f"replanning on the way: plan-{k}")
             gs.publish("trajectory", trajectory_message(to_local(new, home), f"plan-{k}"))
             published += 1
 
@@ -237,6 +269,7 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
         and np.linalg.norm(np.asarray(gs.telemetry["position"]) - goal_local) < 0.5,
         timeout_s, "the goal")
     flight_time = time.monotonic() - t_start
+    say(f"goal reached after {flight_time:.1f} s")
     return {"flight_time_s": flight_time, "planned_durations_s": planned,
             "trajectories_published": published}
 
@@ -246,6 +279,7 @@ async def _run(cfg: Config, world: World, home: np.ndarray, speed: float, replan
     async with running(cfg) as (service, gs):
         result = await fly_to_goal(gs, world, home, speed, min(cfg.limits.a_max), replans)
         if land:
+            say("landing")
             await gs.command_confirmed("land")
         result.update(retimed=gs.retimed, jitter_p99_ms=service.jitter_p99_ms(),
                       last_status=gs.status)
@@ -272,9 +306,19 @@ def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
     """Run the demo flight; print and return a summary; write the flight record,
     its plot and a JSON summary. With ``px4_build`` the vehicle is real PX4 SITL
     (the SIH quadrotor of that build) instead of the ``sitl`` vehicle."""
+    _PROGRESS["t0"] = time.monotonic()
+    try:
+        return _demo(out_dir, seed, speed, replans, px4_build)
+    finally:
+        _PROGRESS["t0"] = None
+
+
+def _demo(out_dir: str, seed: int, speed: float, replans: int,
+          px4_build: str | None) -> dict[str, Any]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     world = get_world("forest", seed=seed)
+    say("booting PX4 SITL (SIH)" if px4_build else "starting the simulated vehicle (sitl)")
     zenoh_port = free_tcp_port()
     # The service's persisted state (the in-flight estimate) lives under the output folder
     # and is kept: a second and third demo in a row fly with what the first one learned.
@@ -286,6 +330,7 @@ def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
               f"{speed} m/s; vehicle ({'PX4 SITL' if px4_build else 'sitl'}) on udp "
               f"127.0.0.1:{mav_port}, Zenoh tcp/127.0.0.1:{zenoh_port}", flush=True)
         result = asyncio.run(_run(cfg, world, home, speed, replans, land=True))
+    say("landed: writing the summary and the plot")
     flight = replay.load(result["record"])
     report = sim.report if sim is not None else None
     if report is not None:

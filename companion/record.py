@@ -336,8 +336,14 @@ def read(paths: Iterable[str | Path],
     channels (JSON, schema ``rota/<channel>``), not their Foxglove views."""
     topics = None if channels is None else [f"/{c}" for c in channels]
     for schema, channel, message in read_raw(paths, topics):
-        if schema is not None and schema.name.startswith("rota/"):
-            yield channel.topic[1:], message.log_time / 1e9, json.loads(message.data)
+        if schema is None or not schema.name.startswith("rota/") \
+                or channel.message_encoding != "json":
+            continue  # not one of ours (a foreign MCAP, or a Foxglove view)
+        try:
+            data = json.loads(message.data)
+        except ValueError:
+            continue
+        yield channel.topic[1:], message.log_time / 1e9, data
 
 
 def read_raw(paths: Iterable[str | Path], topics: Iterable[str] | None = None,

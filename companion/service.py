@@ -137,13 +137,20 @@ class Service:
         for problem in self.exposed:
             self.report.warn(f"INSECURE: {problem}")
         self._set_priority()  # before any thread starts: threads inherit it
-        self.recorder.start()
+        # The record is queued from here on but its file opens only once Zenoh is
+        # open and the workers are warm: a start that fails leaves no empty record.
         self._log_to_record = self.recorder.log_handler()
         logging.getLogger("rota").addHandler(self._log_to_record)
         self.recorder.put("config", self.cfg.to_dict())
         self._open_zenoh(z)
-        warm, _ = await asyncio.gather(self.retimer.start(), self.decoder.start())
+        starting = asyncio.create_task(self.notifier.starting(
+            "compiling or loading the solver"))
+        try:
+            warm, _ = await asyncio.gather(self.retimer.start(), self.decoder.start())
+        finally:
+            starting.cancel()
         log.info("re-time worker warm (solver compiled or loaded in %.1f s)", warm)
+        self.recorder.start()
         # What start-up made (modules, configuration, Zenoh and MAVSDK objects) lives
         # as long as the service: out of the garbage collector's sight, a full
         # collection walks only what came since (in a full collection every thread

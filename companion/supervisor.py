@@ -39,6 +39,19 @@ class Notifier:
     def notify(self, state: str) -> None:
         self._sd.notify(state)  # sdnotify swallows errors (e.g. BlockingIOError)
 
+    async def starting(self, what: str, every_s: float = 5.0, extend_s: float = 30.0,
+                       limit_s: float = 900.0) -> None:
+        """While cancelled from outside, tell systemd every ``every_s`` that the start
+        goes on (``EXTEND_TIMEOUT_USEC``: the first compile of the solver takes
+        tens of seconds, minutes on a slow board, beyond the unit's start
+        timeout), with ``what`` and the time so far in ``STATUS=``. After
+        ``limit_s`` it stops extending: a start that hangs still times out."""
+        start = time.monotonic()
+        while (spent := time.monotonic() - start) < limit_s:
+            self.notify(f"EXTEND_TIMEOUT_USEC={int(extend_s * 1e6)}\n"
+                        f"STATUS=starting: {what} ({spent:.0f} s)")
+            await asyncio.sleep(every_s)
+
     def watchdog(self) -> None:
         """Feed systemd's watchdog (at most 4 Hz), only while everything lives."""
         now = time.monotonic()

@@ -68,7 +68,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr, ndtri
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.jit import kernels
 
 FloatArray = NDArray[np.float64]
@@ -156,7 +156,7 @@ class UncertaintyModel:
         object.__setattr__(self, "memory_s", _number(self.memory_s, "memory_s", lo=0.0,
                                                      hi=MAX_MEMORY_S))
         if not isinstance(self.per_axis, bool):
-            raise InputError("per_axis", f"must be true or false, got {self.per_axis!r}")
+            raise InputError("per_axis", f"must be true or false, got {plain(self.per_axis)}")
 
     def std(self, velocity: ArrayLike) -> FloatArray:
         """Per-axis position std ``(n, 3)`` for velocities ``(n, 3)`` (Eq. 15)."""

@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
 import threading
 import time
@@ -208,12 +210,66 @@ class Progress:
         self._thread.start()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type | None, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
         end = "\n" if self._tty else ""
-        print(f"{end}rota retime: {self.what}: done in {time.monotonic() - self._t0:.1f} s",
-              file=sys.stderr, flush=True)
+        if kind is None:
+            print(f"{end}rota retime: {self.what}: done in {time.monotonic() - self._t0:.1f} s",
+                  file=sys.stderr, flush=True)
+        elif end:
+            print(file=sys.stderr, flush=True)
+
+
+class CtrlC:
+    """While a re-time runs. Ctrl-C takes effect when the compiled step that runs
+    returns (:mod:`rota.interrupt`), which on a long solve may take a while: if it
+    has not within half a second, say so; a second Ctrl-C stops at once (exit
+    130: nothing has been written yet). Watches the signal through Python's
+    wakeup fd, which the C-level handler writes while the main thread computes."""
+
+    def __enter__(self) -> CtrlC:
+        self._done, self._thread, self._old = threading.Event(), None, None
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._w, False)
+        try:
+            self._old = signal.set_wakeup_fd(self._w, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread
+            return self
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+        return self
+
+    def _watch(self) -> None:
+        seen = 0
+        while data := os.read(self._r, 64):
+            seen += data.count(signal.SIGINT)
+            if seen >= 2:
+                print("rota retime: interrupted", file=sys.stderr, flush=True)
+                os._exit(130)
+            if seen == 1 and not self._done.wait(0.5):
+                print("rota retime: Ctrl-C: stopping when the running solver step returns "
+                      "(Ctrl-C again: now)", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        if self._old is not None:
+            signal.set_wakeup_fd(self._old)
+        os.close(self._w)  # the watcher reads the end of the pipe and returns
+        if self._thread is not None:
+            self._thread.join()
+        os.close(self._r)
+
+
+def check_setpoints(args: argparse.Namespace, duration: float) -> None:
+    """The cap on setpoints, now that the re-timed duration is known."""
+    if args.rate is None:
+        return
+    count = math.floor(duration * args.rate + 1e-9) + 2 if math.isfinite(duration) else math.inf
+    if count > args.max_points:
+        raise InputError("--rate", f"{count:.0f} setpoints ({duration:.1f} s re-timed at "
+                         f"{args.rate:g} Hz) is over the cap of {args.max_points} "
+                         "(--max-points N to allow more, or a lower --rate); nothing written")
 
 
 def cmd_retime(args: argparse.Namespace) -> int:
@@ -222,29 +278,44 @@ def cmd_retime(args: argparse.Namespace) -> int:
     inp = build_input(args, msg.trajectory)
     lo, hi = msg.trajectory.domain
     nodes = int((hi - lo) / args.dtau)
-    if nodes > PROGRESS_NODES:
-        with Progress(f"re-timing {_size(msg.trajectory)} points on {nodes} grid nodes"):
+    with CtrlC():
+        if nodes > PROGRESS_NODES:
+            with Progress(f"re-timing {_size(msg.trajectory)} points on {nodes} grid nodes"):
+                result = retime(inp)
+        else:
             result = retime(inp)
-    else:
-        result = retime(inp)
+    check_setpoints(args, result.duration)
     out = result_to_dict(result, msg, rate_hz=args.rate)
     try:
-        dump(out, args.output)
+        text = json.dumps(out, indent=1, allow_nan=False) + "\n"
     except ValueError:  # NaN or inf in the result: never write invalid JSON
         raise InputError("trajectory", "the re-timed result is not finite (values too "
                          "large?); nothing written") from None
-    print(f"{msg.id or args.input}: {result.status}; duration {msg.trajectory.duration:.3f} s "
-          f"-> {result.duration:.3f} s" + (f" ({result.message})" if result.message else ""))
+    # with -o - the result is standard output; what is said about it goes to stderr
+    say = sys.stderr if args.output == "-" else sys.stdout
+    if args.output == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        Path(args.output).write_text(text)
+    if result.status == REJECTED:  # its time mapping is a stand-in, never to be flown
+        print(f"{msg.id or args.input}: rejected, not to be flown: {result.message}", file=say)
+    else:
+        print(f"{msg.id or args.input}: {result.status}; duration "
+              f"{msg.trajectory.duration:.3f} s -> {result.duration:.3f} s"
+              + (f" ({result.message})" if result.message else ""), file=say)
     for w in result.warnings:
-        print(f"warning: {w}")
+        print(f"warning: {w}", file=say)
     zones = result.extras.get("intervals", ())
     if inp.safety is not None:
-        print(f"braking zones (trajectory time): {[tuple(round(x, 2) for x in z) for z in zones]}")
+        shown = ", ".join(f"{float(a):.2f}-{float(b):.2f}" for a, b in zones) or "none"
+        print(f"braking zones (trajectory time, s): {shown}", file=say)
     if args.plot:
         from rota.plot import plot_result
 
         obstacles = None if inp.safety is None else inp.safety.map.occupied
-        print(f"plot: {plot_result(result, inp.limits, args.plot, obstacles, title=msg.id)}")
+        print(f"plot: {plot_result(result, inp.limits, args.plot, obstacles, title=msg.id)}",
+              file=say)
     if result.status == REJECTED:
         return EXIT_REJECTED
     return EXIT_OK if result.ok else EXIT_FALLBACK
@@ -298,13 +369,15 @@ def make_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("retime", help="re-time a trajectory message (JSON)")
     p.add_argument("input", help="rota/trajectory JSON file")
-    p.add_argument("-o", "--output", required=True, help="where to write the rota/result JSON")
+    p.add_argument("-o", "--output", required=True,
+                   help="where to write the rota/result JSON (- for standard output)")
     p.add_argument("--plot", help="also write a plot (PNG/SVG/PDF)")
     p.add_argument("--rate", type=float, default=None,
                    help="also write setpoints sampled at this rate (Hz)")
     p.add_argument("--max-points", type=int, default=MAX_POINTS,
                    help=f"refuse larger work: trajectory points, grid nodes (duration / "
-                   f"dtau) or setpoints (duration x rate) (default {MAX_POINTS})")
+                   f"dtau) or setpoints (re-timed duration x rate; checked again after "
+                   f"the solve) (default {MAX_POINTS})")
     add_retime_options(p)
     add_safety_options(p)
     p.set_defaults(func=cmd_retime)

@@ -25,7 +25,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from types import ModuleType
+from types import SimpleNamespace
 
 _state: dict[str, object] = {"dir": None, "kernels": None}
 
@@ -76,16 +76,18 @@ def cache_enabled() -> bool:
     return _state["dir"] is not None
 
 
-def kernels() -> ModuleType:
-    """The compiled kernels (:mod:`rota.kernels`), loaded on first use."""
-    mod = _state["kernels"]
-    if mod is None:
+def kernels() -> SimpleNamespace:
+    """The compiled kernels (:mod:`rota.kernels`), loaded on first use, each with
+    Ctrl-C held while it runs (:mod:`rota.interrupt`)."""
+    found = _state["kernels"]
+    if found is None:
         if _state["dir"] is None:
             configure()
         import rota.kernels as mod  # noqa: PLC0415 - deliberately lazy
+        from rota.interrupt import guarded  # noqa: PLC0415
 
-        _state["kernels"] = mod
-    return mod  # type: ignore[return-value]
+        found = _state["kernels"] = guarded(mod)
+    return found  # type: ignore[return-value]
 
 
 def warm_up(cache_dir: str | os.PathLike[str] | None = None) -> float:

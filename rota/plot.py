@@ -14,12 +14,29 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from rota.problem import Limits  # noqa: E402
-from rota.result import RetimeResult  # noqa: E402
+from rota.result import REJECTED, RetimeResult  # noqa: E402
+
+REJECTED_COLOUR = "C3"
 
 
 def plot_result(result: RetimeResult, limits: Limits, path: str | Path,
                 obstacles: NDArray[np.float64] | None = None, title: str = "") -> Path:
     """Write a 2x2 figure for ``result`` to ``path`` (PNG, SVG or PDF by suffix)."""
+    fig = figure(result, limits, obstacles, title)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def figure(result: RetimeResult, limits: Limits, obstacles: NDArray[np.float64] | None = None,
+           title: str = "") -> plt.Figure:
+    """The figure of :func:`plot_result`. A rejected result (the path is unsafe) is
+    drawn as rejected: its path in red with the reason, the planned profile only,
+    no re-timed profile (the result's time mapping is a stand-in, never flown)."""
+    if result.status == REJECTED:
+        return _rejected(result, limits, obstacles, title)
     traj = result.trajectory
     t0, t1 = traj.domain
     tau_o = np.linspace(t0, t1, 1000)
@@ -61,25 +78,61 @@ def plot_result(result: RetimeResult, limits: Limits, path: str | Path,
     a_map.grid(alpha=0.3)
 
     p = traj.position(tau_o)
-    if obstacles is not None and len(obstacles):
-        near = np.all((obstacles[:, :2] > p[:, :2].min(0) - 2)
-                      & (obstacles[:, :2] < p[:, :2].max(0) + 2), axis=1)
-        a_top.scatter(obstacles[near, 0], obstacles[near, 1], s=2, color="k", alpha=0.4,
-                      label="occupied voxels")
+    _obstacles(a_top, obstacles, p)
     a_top.plot(p[:, 0], p[:, 1], color="C0", label="path")
     mask = result.extras.get("braking_mask")
     if mask is not None and np.any(mask):
         bp = traj.position(result.tau[mask])
         a_top.scatter(bp[:, 0], bp[:, 1], s=8, color="C3", zorder=3, label="braking points")
-    a_top.set(xlabel="x (m)", ylabel="y (m)", title="Top view")
-    a_top.set_aspect("equal", adjustable="datalim")
-    a_top.legend(fontsize=8)
-    a_top.grid(alpha=0.3)
+    _top_view(a_top, fig, title)
+    return fig
+
+
+def _obstacles(ax: plt.Axes, obstacles: NDArray[np.float64] | None,
+               p: NDArray[np.float64]) -> None:
+    if obstacles is not None and len(obstacles):
+        near = np.all((obstacles[:, :2] > p[:, :2].min(0) - 2)
+                      & (obstacles[:, :2] < p[:, :2].max(0) + 2), axis=1)
+        ax.scatter(obstacles[near, 0], obstacles[near, 1], s=2, color="k", alpha=0.4,
+                   label="occupied voxels")
+
+
+def _top_view(ax: plt.Axes, fig: plt.Figure, title: str) -> None:
+    ax.set(xlabel="x (m)", ylabel="y (m)", title="Top view")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+
+
+def _rejected(result: RetimeResult, limits: Limits, obstacles: NDArray[np.float64] | None,
+              title: str) -> plt.Figure:
+    """A rejected path: the planned speed and acceleration, the reason, the path in red."""
+    import textwrap
+
+    traj = result.trajectory
+    t0, t1 = traj.domain
+    tau = np.linspace(t0, t1, 1000)
+    p, v, a = traj.evaluate(tau)
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    a_speed, a_acc, a_note, a_top = ax[0, 0], ax[0, 1], ax[1, 0], ax[1, 1]
+    a_speed.plot(tau - t0, np.linalg.norm(v, axis=1), "--", color="grey", label="as planned")
+    a_speed.axhline(limits.v_max, color="C3", lw=0.8, label="speed limit")
+    a_speed.set(xlabel="planned time (s)", ylabel="speed (m/s)", title="Speed (not flown)")
+    for k, name in enumerate("xyz"):
+        a_acc.plot(tau - t0, a[:, k], "--", color=f"C{k}", lw=0.8, label=f"a_{name} planned")
+    a_acc.set(xlabel="planned time (s)", ylabel="acceleration (m/s²)",
+              title="Acceleration (not flown)")
+    for one in (a_speed, a_acc):
+        one.legend(loc="upper right", fontsize=8)
+        one.grid(alpha=0.3)
+    a_note.axis("off")
+    reason = textwrap.fill(result.message or "rejected", 60)
+    a_note.text(0.02, 0.95, f"REJECTED: not flown\n\n{reason}", va="top", ha="left",
+                fontsize=10, color=REJECTED_COLOUR, transform=a_note.transAxes, wrap=True)
+    _obstacles(a_top, obstacles, p)
+    a_top.plot(p[:, 0], p[:, 1], "--", color=REJECTED_COLOUR, label="rejected path")
+    _top_view(a_top, fig, title)
+    return fig

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.robust import Safety
 from rota.trajectory import Trajectory
 from rota.validate import positive, vector3
@@ -46,7 +46,7 @@ class Limits:
         )
         if a.shape != (3,):
             raise InputError(
-                "limits.a_max", f"must be one number or 3 (x, y, z), got {self.a_max!r}"
+                "limits.a_max", f"must be one number or 3 (x, y, z), got {plain(self.a_max)}"
             )
         vals = tuple(positive(x, f"limits.a_max[{k}]") for k, x in enumerate(a))
         object.__setattr__(self, "a_max", vals)
@@ -171,7 +171,8 @@ class RetimeInput:
             raise InputError("limits", f"must be a rota.Limits, got {type(self.limits)}")
         lam = float(self.smoothness)
         if not np.isfinite(lam) or lam < 0:
-            raise InputError("smoothness", f"must be a finite number >= 0, got {self.smoothness!r}")
+            raise InputError("smoothness", "must be a finite number >= 0, got "
+                             f"{plain(self.smoothness)}")
         object.__setattr__(self, "smoothness", lam)
         dtau = positive(self.dtau, "dtau")
         if dtau > self.trajectory.duration:

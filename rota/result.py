@@ -123,7 +123,7 @@ class RetimeResult:
     def sample_rate(self, rate_hz: float) -> Setpoints:
         """Setpoints at a fixed rate from t = 0 to the end (inclusive)."""
         if not np.isfinite(rate_hz) or rate_hz <= 0:
-            raise ValueError(f"rate_hz must be positive, got {rate_hz!r}")
+            raise ValueError(f"rate_hz must be positive, got {float(rate_hz):g}")
         n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
         t = np.arange(n) / rate_hz
         if t[-1] < self.duration:

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from rota.braking import BrakingParams, BrakingZones, horizon_of, reach_of, zones_from
 from rota.chance import ChanceParams, SpeedLimits, UncertaintyModel, kernel_args, risk_reach
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.jit import kernels
 from rota.trajectory import Trajectory
 from rota.voxelmap import VoxelMap
@@ -67,7 +67,7 @@ class Safety:
             object.__setattr__(self, "bounds", b)
         if self.unknown_speed is not None and not (np.isfinite(self.unknown_speed)
                                                    and self.unknown_speed > 0):
-            raise InputError("unknown_speed", f"must be positive, got {self.unknown_speed!r}")
+            raise InputError("unknown_speed", f"must be positive, got {plain(self.unknown_speed)}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -48,6 +48,26 @@ class TrajectoryMessage:
     stamp: float | None = None  # UNIX time (s) at which the planner published it
 
 
+#: The fields of a trajectory message: every kind's, then each ``type``'s own.
+TRAJECTORY_FIELDS = ("schema", "version", "id", "frame", "stamp", "type", "start",
+                     "start_offset", "start_blend")
+TYPE_FIELDS = {"bspline": ("degree", "control_points", "knot_span", "knots"),
+               "polynomial": ("durations", "coefficients"),
+               "samples": ("t", "p", "v", "a")}
+#: The fields of a result message (:func:`result_to_dict`).
+RESULT_FIELDS = ("schema", "version", "id", "frame", "status", "message", "warnings",
+                 "duration", "input_duration", "tau", "beta", "t", "speed_limits", "solver",
+                 "braking_zones", "trajectory", "setpoints")
+
+
+def check_fields(d: Mapping[str, Any], allowed: tuple[str, ...], what: str = "") -> None:
+    """Refuse a field not in ``allowed``, naming it (a typo such as ``"degre"`` would
+    otherwise be ignored and its default used without a word)."""
+    extra = sorted(str(k) for k in d if k not in allowed)
+    if extra:
+        raise InputError(extra[0], f"unknown field{what} (allowed: {', '.join(allowed)})")
+
+
 def _require(d: dict[str, Any], key: str) -> Any:
     if key not in d:
         raise InputError(key, "is required")
@@ -84,6 +104,8 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
                               or not math.isfinite(stamp)):
         raise InputError("stamp", f"must be a finite number (UNIX seconds), got {stamp!r}")
     kind = _require(d, "type")
+    if kind in TYPE_FIELDS:
+        check_fields(d, TRAJECTORY_FIELDS + TYPE_FIELDS[kind], f" of a {kind!r} trajectory")
     try:
         if kind == "bspline":
             traj: Trajectory = BSplineTrajectory(
@@ -200,6 +222,7 @@ def result_to_dict(result: RetimeResult, msg: TrajectoryMessage,
 def result_from_dict(d: object) -> tuple[RetimeResult, TrajectoryMessage]:
     """Rebuild a result (and its trajectory) from a ``rota/result`` message."""
     d = check_envelope(d, RESULT)
+    check_fields(d, RESULT_FIELDS)
     try:
         msg = trajectory_from_dict(_require(d, "trajectory"))
     except InputError as exc:

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import interpolate
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.jit import kernels
 from rota.validate import KeepsReadOnly
 
@@ -189,7 +189,7 @@ class BSplineTrajectory(Trajectory):
         cps = _finite_array(self.control_points, "control_points", 2, 3)
         object.__setattr__(self, "control_points", cps)
         if not isinstance(self.degree, int | np.integer) or not 3 <= int(self.degree) <= 7:
-            raise InputError("degree", f"must be an integer from 3 to 7, got {self.degree!r}")
+            raise InputError("degree", f"must be an integer from 3 to 7, got {plain(self.degree)}")
         k = int(self.degree)
         n = len(cps)
         if n < k + 1:
@@ -202,7 +202,8 @@ class BSplineTrajectory(Trajectory):
             except (TypeError, ValueError):
                 span = float("nan")
             if not np.isfinite(span) or span <= 0:
-                raise InputError("knot_span", f"must be a positive number, got {self.knot_span!r}")
+                raise InputError("knot_span", "must be a positive number, got "
+                                 f"{plain(self.knot_span)}")
             knots = (np.arange(n + k + 1, dtype=float) - k) * span
         else:
             knots = _finite_array(self.knots, "knots", 1)
@@ -422,8 +423,9 @@ class Window(Trajectory):
         end = b1 if self.end is None else float(self.end)
         start = float(self.start)
         if not (np.isfinite(start) and b0 <= start < end <= b1):
-            raise InputError("start", f"must lie in the trajectory's domain [{b0}, {b1}) and "
-                             f"before the end, got {self.start!r}")
+            raise InputError("start", "must lie in the trajectory's domain "
+                             f"[{float(b0):g}, {float(b1):g}) and "
+                             f"before the end, got {plain(self.start)}")
         object.__setattr__(self, "start", start)
         object.__setattr__(self, "end", end)
         if self.offset is None:
@@ -433,7 +435,7 @@ class Window(Trajectory):
         blend = float(self.blend)
         if not (np.isfinite(blend) and 0.0 < blend <= end - start + 1e-12):
             raise InputError("start_blend", f"must be positive and at most the window's "
-                             f"length {end - start:.6g}, got {self.blend!r}")
+                             f"length {end - start:.6g}, got {plain(self.blend)}")
         object.__setattr__(self, "offset", offset)
         object.__setattr__(self, "blend", min(blend, end - start))
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 
 FloatArray = NDArray[np.float64]
 
@@ -16,10 +16,10 @@ FloatArray = NDArray[np.float64]
 def positive(value: object, name: str) -> float:
     """A positive, finite number (not a boolean, not a string)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise InputError(name, f"must be a positive finite number, got {value!r}")
+        raise InputError(name, f"must be a positive finite number, got {plain(value)}")
     x = float(value)
     if not math.isfinite(x) or x <= 0:
-        raise InputError(name, f"must be a positive finite number, got {value!r}")
+        raise InputError(name, f"must be a positive finite number, got {plain(value)}")
     return x
 
 
@@ -28,7 +28,7 @@ def vector3(value: object, name: str) -> FloatArray:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(name, f"must be 3 numbers (x, y, z), got {value!r}") from None
+        raise InputError(name, f"must be 3 numbers (x, y, z), got {plain(value)}") from None
     if arr.shape != (3,):
         raise InputError(name, f"must be 3 numbers (x, y, z), got shape {arr.shape}")
     bad = ~np.isfinite(arr)

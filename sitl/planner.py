@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.trajectory import BSplineTrajectory
 from rota.validate import positive, vector3
 from sitl.world import World
@@ -147,7 +147,7 @@ def plan_detailed(
     resolution, knot_span = positive(resolution, "resolution"), positive(knot_span, "knot_span")
     clearance = float(clearance)
     if not math.isfinite(clearance) or clearance < 0:
-        raise InputError("clearance", f"must be a non-negative number, got {clearance!r}")
+        raise InputError("clearance", f"must be a non-negative number, got {plain(clearance)}")
     p0 = vector3(world.start if start is None else start, "start")
     p1 = vector3(world.goal if goal is None else goal, "goal")
     v0 = np.zeros(3) if start_velocity is None else vector3(start_velocity, "start_velocity")

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rota.errors import InputError
+from rota.errors import InputError, plain
 from rota.schema import check_envelope
 
 FloatArray = NDArray[np.float64]
@@ -58,7 +58,7 @@ def _vec(value: Any, name: str, size: int) -> tuple[float, ...]:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(name, f"must be a list of {size} numbers, got {value!r}") from None
+        raise InputError(name, f"must be a list of {size} numbers, got {plain(value)}") from None
     if arr.shape != (size,):
         raise InputError(name, f"must be a list of {size} numbers, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -69,7 +69,7 @@ def _vec(value: Any, name: str, size: int) -> tuple[float, ...]:
 def _num(value: Any, name: str, positive: bool = False) -> float:
     """A finite float (optionally > 0); errors name the field."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise InputError(name, f"must be a number, got {value!r}")
+        raise InputError(name, f"must be a number, got {plain(value)}")
     out = float(value)
     if not math.isfinite(out):
         raise InputError(name, "must be finite (got NaN or inf)")
@@ -186,14 +186,16 @@ class World:
             raise InputError("bounds", "must be (min corner, max corner)")
         lo, hi = _vec(self.bounds[0], "bounds.min", 3), _vec(self.bounds[1], "bounds.max", 3)
         if any(b <= a for a, b in zip(lo, hi, strict=True)):
-            raise InputError("bounds.max", f"must exceed bounds.min on every axis, got {lo}, {hi}")
+            raise InputError("bounds.max", "must exceed bounds.min on every axis, got "
+                             f"{plain(lo)}, {plain(hi)}")
         object.__setattr__(self, "bounds", (lo, hi))
         object.__setattr__(self, "robot_radius",
                            _num(self.robot_radius, "robot_radius", positive=True))
         for name in ("start", "goal"):
             p = _vec(getattr(self, name), name, 3)
             if any(v < a or v > b for v, a, b in zip(p, lo, hi, strict=True)):
-                raise InputError(name, f"must lie inside the bounds {lo} - {hi}, got {p}")
+                raise InputError(name, f"must lie inside the bounds {plain(lo)} - {plain(hi)}, "
+                                 f"got {plain(p)}")
             object.__setattr__(self, name, p)
         if not isinstance(self.name, str):
             raise InputError("name", f"must be a string, got {self.name!r}")

@@ -415,19 +415,18 @@ def cmd_send_map(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from companion.gs import replay
 
-    for f in args.files:
-        if not Path(f).is_file():
-            raise InputError("replay", f"{f}: no such file")
-    flight = replay.load(args.files)
-    if not len(flight.tel_t) and not len(flight.sp_t):
-        raise InputError("replay", "no telemetry or setpoints in "
-                         f"{', '.join(args.files)} (not a flight record?)")
+    flight = replay.load(args.files)  # InputError (exit 2) for what is no flight record
     figures = replay.stats(flight)
     if args.json:
         _print_json(figures)
     else:
         for k, v in figures.items():
-            print(f"{k}: {v}")
+            if k == "plans_rejected":
+                print(f"{k}: {len(v)}")
+                for plan in v:
+                    print(f"  {plan['id'] or '(no id)'} rejected: {plan['reason']}")
+            else:
+                print(f"{k}: {v}")
     if args.plot:
         title = args.title or Path(args.files[0]).name
         print(f"plot: {replay.plot(flight, args.plot, title=title)}")

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from companion.record import read
+from rota.errors import InputError
 
 #: Plan colours: no red or orange (the speed limit and braking zones use them).
 PLAN_COLOURS = ("tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive",
@@ -67,6 +68,12 @@ class Flight:
                 out.append((src, float(t), results[-1]))
         return out
 
+    def rejected(self) -> list[tuple[str, float, dict[str, Any]]]:
+        """(id, time, result) of each re-timed plan the service rejected (the path
+        is unsafe: through an obstacle of the map); never flown."""
+        return [(str(r.get("id") or ""), float(s), r) for s, r in self.retimed
+                if r.get("status") == "rejected"]
+
     def phase(self, command: str, until: tuple[str, ...]) -> tuple[float, float] | None:
         """From the (accepted) ``command`` to the first status in a state of ``until``."""
         starts = [s for s, r in self.commands if r.get("command") == command and r.get("ok")]
@@ -78,12 +85,44 @@ class Flight:
         return begin, ends[0] if ends else float(last)
 
 
+#: The first bytes of every MCAP file.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: The channels of a flight record (companion.record).
+CHANNELS = ("telemetry", "setpoint", "retimed", "map", "command", "status", "log", "config",
+            "trajectory")
+
+
+def check_files(paths: Iterable[str | Path]) -> list[Path]:
+    """The record files, each an MCAP file; InputError naming the first that is not."""
+    out = []
+    for p in map(Path, paths):
+        if not p.is_file():
+            raise InputError(str(p), "no such file")
+        with open(p, "rb") as fh:
+            head = fh.read(len(MCAP_MAGIC))
+        if not head:
+            raise InputError(str(p), "is empty (0 bytes): not a flight record (a service "
+                             "that failed to start writes none)")
+        if head != MCAP_MAGIC:
+            raise InputError(str(p), "is not an MCAP file (flight records are .mcap files "
+                             "in [record] dir)")
+        out.append(p)
+    return out
+
+
 def load(paths: Iterable[str | Path]) -> Flight:
-    """Read one flight's record files (the parts of one run, in order)."""
+    """Read one flight's record files (the parts of one run, in order). InputError
+    (one line) for a file that is not a flight record, or a record without a
+    vehicle in it (no telemetry, no setpoints)."""
+    files = sorted(check_files(paths))
     tel, sps, retimed, commands, statuses, logs = [], [], [], [], [], []
     config: dict[str, Any] = {}
     vmap = None
-    for channel, stamp, m in read(sorted(Path(p) for p in paths)):
+    seen = 0
+    for channel, stamp, m in read(files):
+        seen += channel in CHANNELS and isinstance(m, dict)
+        if not isinstance(m, dict):
+            continue
         if channel == "telemetry":
             tel.append((stamp, m))
         elif channel == "setpoint":
@@ -100,12 +139,20 @@ def load(paths: Iterable[str | Path]) -> Flight:
             logs.append((stamp, m))
         elif channel == "config" and not config:
             config = m
+    names = ", ".join(str(f) for f in files)
+    if not seen:
+        raise InputError(names, "holds no flight-record channels (an MCAP file from "
+                         "another program?)")
     tel = [(s, m) for s, m in tel if m.get("position") is not None]
+    if not tel and not sps:
+        raise InputError(names, "a record without a vehicle: no telemetry and no setpoints "
+                         "(the service did not connect to PX4, or stopped at once)")
     nan3 = [np.nan] * 3
 
     def arr(rows: list, key: str, default: Any = nan3) -> np.ndarray:
+        width = len(default) if isinstance(default, list) else 1
         return np.array([default if m.get(key) is None else m[key] for _, m in rows],
-                        dtype=float).reshape(len(rows), -1)
+                        dtype=float).reshape(len(rows), width)
 
     return Flight(
         config=config, tel_t=np.array([s for s, _ in tel]), position=arr(tel, "position"),
@@ -134,6 +181,8 @@ def stats(f: Flight) -> dict[str, Any]:
                                            if len(f.sp_a) else None),
         "max_tracking_error_m": top(f.tracking_error),
         "plans_flown": [p[0] for p in plans],
+        "plans_rejected": [{"id": ident, "reason": r.get("message", "")}
+                           for ident, _, r in f.rejected()],
         "braking_zones_flown": sum(len(r.get("braking_zones", [])) for _, _, r in plans),
         "setpoints": len(f.sp_t),
     }
@@ -172,6 +221,19 @@ def _draw_map(ax: Any, vmap: dict[str, Any], z_band: tuple[float, float]) -> Non
 
 def plot(f: Flight, path: str | Path, title: str = "") -> Path:
     """Draw the flight (see the module doc) to ``path`` (PNG, SVG or PDF)."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(f, title)
+    out = Path(path)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def figure(f: Flight, title: str = "") -> Any:
+    """The figure :func:`plot` writes. Rejected plans are drawn apart: their paths
+    dashed in the limit's red with an x where they begin, marked "rejected" where
+    the service rejected them on the time axis, and their reasons listed below."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -212,6 +274,14 @@ def plot(f: Flight, path: str | Path, title: str = "") -> Path:
         top.plot(*start[:2], ">", color=c, mec="k", ms=11, zorder=5)
         top.annotate(f"{ident} takes over" if k else f"{ident} starts", start[:2],
                      textcoords="offset points", xytext=(6, 8), fontsize=8, color=c)
+    rejected = f.rejected()
+    for k, (ident, _, r) in enumerate(rejected):
+        _, p = _path(r)
+        top.plot(p[:, 0], p[:, 1], "--", color=LIMIT_COLOUR, lw=1.2, alpha=0.8,
+                 label="rejected plan (not flown)" if k == 0 else None)
+        top.plot(*p[0, :2], "x", color=LIMIT_COLOUR, ms=9, mew=2)
+        top.annotate(f"{ident} rejected", p[0, :2], textcoords="offset points",
+                     xytext=(6, -12), fontsize=8, color=LIMIT_COLOUR)
     if air.any():
         top.plot(f.position[air, 0], f.position[air, 1], color="k", lw=1,
                  label="flown (PX4's estimate)")
@@ -253,6 +323,10 @@ def plot(f: Flight, path: str | Path, title: str = "") -> Path:
             ax.axvline(t_take - t0, color=c, lw=1, ls="-.")
         spd.text(t_take - t0, 0.98, f" {ident}", color=c, fontsize=8, va="top",
                  transform=spd.get_xaxis_transform())
+    for ident, stamp, _ in rejected:
+        spd.axvline(stamp - t0, color=LIMIT_COLOUR, lw=1, ls=":")
+        spd.text(stamp - t0, 0.9, f" {ident} rejected", color=LIMIT_COLOUR, fontsize=8,
+                 va="top", transform=spd.get_xaxis_transform())
     if len(f.sp_t):
         spd.plot(f.sp_t - t0, np.linalg.norm(f.sp_v, axis=1), color="tab:blue", lw=1.2,
                  label="commanded speed")
@@ -280,11 +354,19 @@ def plot(f: Flight, path: str | Path, title: str = "") -> Path:
     trk.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    if rejected:
+        import textwrap
+
+        lines = [textwrap.shorten(f"{ident} rejected at {_clock(stamp)} UTC: "
+                                  f"{r.get('message', '')}", 170)
+                 for ident, stamp, r in rejected[:4]]
+        more = len(rejected) - 4
+        lines += [f"... and {more} more rejected"] if more > 0 else []
+        fig.text(0.01, 0.005, "\n".join(lines), fontsize=8, color=LIMIT_COLOUR, va="bottom")
+        fig.tight_layout(rect=(0, 0.025 * len(lines), 1, 1))
+    else:
+        fig.tight_layout()
+    return fig
 
 
 def _clock(t: float) -> str:

@@ -1,0 +1,57 @@
+"""The console scripts' entry points: each CLI's ``main`` behind a light shim.
+
+The shim imports nothing heavy before its ``try``, so Ctrl-C at any moment,
+also while numpy, numba or zenoh are still being imported, ends with one line
+("PROG: interrupted") and exit status 130 instead of a traceback. Once ``main``
+has returned, SIGINT is ignored, so the exit status is the command's own.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from importlib import import_module
+
+INTERRUPTED = 130
+
+
+def run(prog: str, module: str) -> int:
+    """Import ``module`` and return its ``main()``; 130 with one line on Ctrl-C.
+
+    While importing, SIGINT is also recorded: an import may turn the
+    KeyboardInterrupt into another error (numpy's C extensions raise ImportError
+    "PyCapsule_Import could not import module ..."). ``main`` runs with Python's
+    default handler back in place (asyncio and the CLIs rely on it)."""
+    seen: list[int] = []
+
+    def on_sigint(signum: int, frame: object) -> None:
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        main = import_module(module).main
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if seen:  # an import swallowed it
+            raise KeyboardInterrupt
+        code = main()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except BaseException as exc:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if not (seen or isinstance(exc, KeyboardInterrupt)):
+            raise
+        print(f"{prog}: interrupted", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    return code
+
+
+def rota() -> int:
+    return run("rota", "rota.cli")
+
+
+def companion() -> int:
+    return run("rota-companion", "companion.cli")
+
+
+def gs() -> int:
+    return run("rota-gs", "companion.gs.cli")
