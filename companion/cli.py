@@ -219,6 +219,11 @@ def cmd_soak(args: argparse.Namespace) -> int:
         print(f"  RSS at {t:7.1f} s: {mb:.1f} MB")
     for e in figures.errors[:20]:
         print(f"  error: {e}")
+    if figures.reaction_ms:
+        r = figures.reaction_ms
+        print(f"reaction, trajectory arrival to its first setpoint ({r['count']} replans): "
+              f"p50 {r['p50']} ms, p99 {r['p99']} ms, max {r['max']} ms; parts p50 (p99): "
+              + ", ".join(f"{k} {v} ({r['parts_p99'][k]})" for k, v in r["parts_p50"].items()))
     for what, usage in (("replanning at 10 Hz", figures.replanning),
                         ("holding, no replans", figures.holding)):
         if usage is not None:

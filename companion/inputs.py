@@ -22,7 +22,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import zenoh
@@ -33,6 +33,7 @@ from companion.actors import Actor, Peers
 from companion.config import Config, short
 from companion.decoder import DecodeFn, Decoder
 from companion.outbox import Send, send_now
+from companion.reaction import Timing
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -153,7 +154,8 @@ class Inputs:
     def deliver(self, what: str, payload: bytes, fn: DecodeFn | None = None,
                 actor: Actor = NOBODY) -> None:
         """Hand an admitted put to the loop (any thread); ``fn`` decodes it."""
-        self._loop.call_soon_threadsafe(self._arrived, what, payload, fn, actor)
+        self._loop.call_soon_threadsafe(self._arrived, what, payload, fn, actor,
+                                        time.monotonic())
 
     def _put(self, what: str) -> Callable[[zenoh.Sample], None]:
         def callback(sample: zenoh.Sample) -> None:
@@ -198,7 +200,8 @@ class Inputs:
         reply(query, self._reply_key(what, name), json.dumps(body).encode())
 
     # -------------------------------------------------------------- event loop
-    def _arrived(self, what: str, payload: bytes, fn: DecodeFn | None, actor: Actor) -> None:
+    def _arrived(self, what: str, payload: bytes, fn: DecodeFn | None, actor: Actor,
+                 arrived: float) -> None:
         self.record(what, payload if len(payload) <= RECORD_MAX_BYTES else
                     {"bytes": len(payload), "not_recorded": "larger than "
                      f"{RECORD_MAX_BYTES} bytes"})
@@ -206,7 +209,7 @@ class Inputs:
         if len(queue) >= BACKLOG.get(what, 1):
             queue.popleft()
             self._drop(what, "superseded by newer ones before it was decoded")
-        queue.append((payload, fn, actor))
+        queue.append((payload, fn, actor, arrived))
         self._wake.setdefault(what, asyncio.Event()).set()
 
     async def consume(self, what: str) -> None:
@@ -219,7 +222,7 @@ class Inputs:
                 wake.clear()
                 await wake.wait()
                 continue
-            payload, fn, actor = queue.popleft()
+            payload, fn, actor, arrived = queue.popleft()
             size = len(payload)
             try:
                 obj = await self._decoder.decode(what, payload, fn)
@@ -228,6 +231,8 @@ class Inputs:
                 continue
             finally:
                 payload = None  # (not held while this task waits for the next: up to the cap)
+            if isinstance(obj, msgs.Incoming):  # (its way to the vehicle is timed)
+                obj = replace(obj, timing=Timing(arrived, time.monotonic()))
             try:
                 handler(obj)
             except msgs.Rejected as exc:

@@ -19,6 +19,7 @@ import numpy as np
 
 from companion.config import Config
 from companion.frames import trajectory_to_enu
+from companion.reaction import Timing
 from rota.errors import InputError
 from rota.schema import VERSION, TrajectoryMessage, trajectory_from_dict
 from rota.trajectory import (
@@ -56,6 +57,7 @@ class Incoming:
     trajectory: Trajectory
     frame: str
     stamp: float | None
+    timing: Timing | None = None  #: its way through the service, for the reaction time
 
 
 def decode(payload: bytes, what: str, max_depth: int = 16,

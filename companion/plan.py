@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.reaction import Timing
 from rota.result import RetimeResult
 from rota.trajectory import smootherstep_fade
 
@@ -65,6 +66,7 @@ class Plan:
     offset: FloatArray = field(default_factory=lambda: np.zeros(3))
     blend_s: float = 1.0
     blend_t0: float | None = None
+    timing: Timing | None = None  #: its trajectory's way here (the reaction time)
 
     @property
     def _blend_start(self) -> float:

@@ -11,6 +11,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from companion import messages as msgs
@@ -107,7 +108,8 @@ class Replanner:
         predicted takeover time, re-time it; then schedule the takeover."""
         cfg = self._cfg()
         flying = self.flying()
-        t_take = time.monotonic() + self.solve_latency
+        started = time.monotonic()
+        t_take = started + self.solve_latency
         take = self.stream.commanded(t_take) if flying else None
         job = ReplanJob(
             id=incoming.id, stamp=incoming.stamp, trajectory=incoming.trajectory,
@@ -122,6 +124,7 @@ class Replanner:
         self.retiming = incoming.id
         try:
             out = await self.retimer.replan(job, cfg.limits.max_solve_s)
+            retimed = time.monotonic()
         finally:
             self.retiming = None
         if out.rejected:
@@ -152,4 +155,6 @@ class Replanner:
         # The plan's time 0 is the predicted takeover time even when the solve came in
         # later: the new path was joined where the old command is at t_take, so both
         # have moved on alike since (the stream refuses a takeover whose gap is too big)
-        self.stream.offer(Plan(incoming.id, result, t_take))
+        timing = incoming.timing and replace(incoming.timing, started=started, retimed=retimed,
+                                             offered=time.monotonic())
+        self.stream.offer(Plan(incoming.id, result, t_take, timing=timing))

@@ -393,6 +393,7 @@ class Service:
             limits={"v_max": self.cfg.limits.v_max, "a_max": list(self.cfg.limits.a_max)},
             uncertainty=self.uncertainty.describe(),
             setpoint_jitter_p99_ms=self.stream.jitter_p99_ms(),
+            reaction_ms=self.stream.reactions.summary(),
             halted=self.stream.halted,
             insecure=self.exposed or None,
             last_error=said["last_error"],

@@ -37,6 +37,7 @@ class SoakFigures:
     collisions: int = 0
     replanning: Usage | None = None  #: the service's tree while replanning (after warm-up)
     holding: Usage | None = None  #: the same, holding with no replans
+    reaction_ms: dict[str, Any] | None = None  #: the service's reaction times (status)
 
     @property
     def rss_growth(self) -> float:
@@ -85,6 +86,7 @@ def run_soak(minutes: float, speed: float = 2.0, seed: int = 0) -> SoakFigures:
         figures.rss_mb.append((round(time.monotonic() - start, 1),
                                round(flight.service.rss_mb(), 1)))
         figures.replanning = meter.stop() if metered else None
+        figures.reaction_ms = gs.status.get("reaction_ms")
         figures.replans_flown = len(flown - {""})
         figures.errors = statuses_errors(gs.statuses)
         reply = await flight.gs.command("hold")

@@ -59,6 +59,7 @@ from companion.plan import (
     blend_time,
     brake_along,
 )
+from companion.reaction import Reactions
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -145,6 +146,7 @@ class SetpointStream:
         self.last_send_time = 0.0
         self.last_tick = 0.0  # monotonic time of the last loop iteration (supervision)
         self.stalls = 0
+        self.reactions = Reactions()  # from a trajectory's arrival to its first setpoint
         self.longest_stall_s = 0.0
         self.record: Callable[..., None] = lambda channel, payload: None  # flight record
         #: set (on the event loop) after every tick (a setpoint sent, or nothing to
@@ -212,6 +214,7 @@ class SetpointStream:
                               f"is {size:.2f} m from the command (tolerance {tolerance} m)")
             return
         self.source = replace(plan, offset=gap, blend_s=blend_time(size), blend_t0=now)
+        self.reactions.flown(plan.timing, now)  # (this tick's setpoint is the plan's first)
 
     def _decel(self) -> float:
         return BRAKE_SHARE * min(self._cfg().limits.a_max)

@@ -111,6 +111,10 @@ def test_three_replans_reach_the_goal_without_collision_or_jumps_and_are_recorde
     assert figures.max_commanded_speed <= SPEED * 1.01, figures.summary()
     ids = {s.get("trajectory_id") for s in statuses} - {None}
     assert {"plan-0", "plan-1", "plan-2", "plan-3"} <= ids
+    # each replan flown was timed from its message's arrival to its first setpoint
+    reaction = next(s["reaction_ms"] for s in reversed(statuses) if s.get("reaction_ms"))
+    assert reaction["count"] >= 3 and 0 < reaction["p50"] <= reaction["max"], reaction
+    assert set(reaction["parts_p50"]) == {"decode", "queue", "retime", "stitch", "takeover"}
     # offboard only after a pre-stream: the state sequence and the vehicle agree
     states = [s["state"] for s in statuses]
     assert "prestream" in states and states.index("prestream") < states.index("offboard")
