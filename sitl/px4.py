@@ -11,6 +11,12 @@ and has a local position, not after a fixed time. PX4's console log (``px4.log``
 flight logs (``log/**/*.ulg``) stay in the working directory, which is kept (and its path
 printed) when the ``with`` block raises or ``keep=True``; set ``ROTA_PX4_KEEP=1`` to keep it
 always.
+
+PX4's start-up script runs its commands (``px4-param``, ``px4-commander``...) through the
+``px4-*`` links beside ``bin/px4``. A build copied without its symbolic links (each
+``px4-*`` then a small text file naming ``px4``, not executable) cannot boot from there, so
+PX4 always runs from a ``bin/`` of links in its working directory: the build itself is only
+read.
 """
 
 from __future__ import annotations
@@ -73,6 +79,21 @@ def free_instance() -> int:
     raise RuntimeError(f"no free PX4 SITL instance (ports 14540-{14540 + _MAX_INSTANCES - 1})")
 
 
+def _link_commands(build: Path, workdir: Path) -> Path:
+    """``workdir/bin``: ``px4`` (a link to the build's) and its ``px4-*`` command links, made
+    afresh (a copied build may have lost its links); the ``px4`` to run."""
+    bin_dir = workdir / "bin"
+    bin_dir.mkdir()
+    px4 = bin_dir / "px4"
+    px4.symlink_to((build / "bin" / "px4").resolve())
+    for entry in (build / "bin").iterdir():
+        if entry.name.startswith("px4-"):
+            # px4-alias.sh is a script of its own; every other px4-* is px4 by another name
+            target = entry.resolve() if entry.suffix == ".sh" else Path("px4")
+            (bin_dir / entry.name).symlink_to(target)
+    return px4
+
+
 class Px4Sitl:
     """``with Px4Sitl(build) as px4:`` runs PX4 SITL with the SIH quadrotor (airframe
     10040), parameters set at boot through ``PX4_PARAM_<NAME>``; MAVSDK connects to
@@ -121,7 +142,7 @@ class Px4Sitl:
         env.update({f"PX4_PARAM_{k}": str(v) for k, v in self.params.items()})
         self._log = open(self.workdir / "px4.log", "w")  # noqa: SIM115 - closed in __exit__
         self._proc = subprocess.Popen(
-            [str(self.build / "bin" / "px4"), "-i", str(self.instance), "-d",
+            [str(_link_commands(self.build, self.workdir)), "-i", str(self.instance), "-d",
              "-w", str(self.workdir), str(self.build / "etc")],
             env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
         try:
