@@ -21,6 +21,7 @@ read.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import socket
@@ -37,7 +38,7 @@ PX4_ENV = "ROTA_PX4_BUILD"
 KEEP_ENV = "ROTA_PX4_KEEP"
 PX4_PORT = 14540  #: the offboard link's UDP port of instance 0 (instance i: 14540 + i)
 #: local UDP ports PX4 instance i binds (px4-rc.mavlink): base + i
-_BOUND_PORTS = (14580, 18570, 14280, 13030, 19450)
+_BOUND_PORTS = (14580, 18570, 14280, 13030, 19450, 19410)  # 19410: SIH's truth, to us
 _MAX_INSTANCES = 10  # PX4 reuses 14549 for instances above 9
 
 
@@ -70,12 +71,32 @@ def _udp_free(port: int) -> bool:
 _IN_USE: set[int] = set()  # instances of this process (still booting ones bind nothing yet)
 
 
-def free_instance() -> int:
-    """The first PX4 instance number not used by this process whose UDP ports are all free
-    on 127.0.0.1."""
+def _claim(instance: int) -> int | None:
+    """An exclusive lock on PX4 instance ``instance`` across processes (a PX4 still booting
+    binds nothing yet, so two test workers could otherwise pick the same one): the open
+    lock file's descriptor, or None if another process holds it."""
+    path = Path(tempfile.gettempdir()) / f"rota-px4-instance-{instance}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def free_instance() -> tuple[int, int]:
+    """The first PX4 instance number no process of ours uses whose UDP ports are all free
+    on 127.0.0.1, and the descriptor of its lock (close it to release the instance)."""
     for i in range(_MAX_INSTANCES):
-        if i not in _IN_USE and all(_udp_free(base + i) for base in (PX4_PORT, *_BOUND_PORTS)):
-            return i
+        if i in _IN_USE:
+            continue
+        fd = _claim(i)
+        if fd is None:
+            continue
+        if all(_udp_free(base + i) for base in (PX4_PORT, *_BOUND_PORTS)):
+            return i, fd
+        os.close(fd)
     raise RuntimeError(f"no free PX4 SITL instance (ports 14540-{14540 + _MAX_INSTANCES - 1})")
 
 
@@ -121,6 +142,7 @@ class Px4Sitl:
         self.workdir: Path | None = None
         self._proc: subprocess.Popen | None = None
         self._log = None
+        self._lock_fd: int | None = None
 
     @property
     def log_path(self) -> Path | None:
@@ -132,7 +154,7 @@ class Px4Sitl:
         return sorted(self.workdir.glob("**/*.ulg")) if self.workdir is not None else []
 
     def __enter__(self) -> Px4Sitl:
-        self.instance = free_instance()
+        self.instance, self._lock_fd = free_instance()
         _IN_USE.add(self.instance)
         self.port = PX4_PORT + self.instance
         self.workdir = Path(tempfile.mkdtemp(prefix=f"rota-px4-{self.instance}-"))
@@ -189,6 +211,9 @@ class Px4Sitl:
                 self._proc.wait(5)
         self._proc = None
         _IN_USE.discard(self.instance)
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
         if self._log is not None:
             self._log.close()
             self._log = None
