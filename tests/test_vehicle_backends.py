@@ -60,6 +60,25 @@ async def mean_position(gs, samples: int = 20, timeout_s: float = 20.0) -> np.nd
     return np.mean(seen, axis=0)
 
 
+async def settled_position(gs, still_m: float = 0.05, timeout_s: float = 30.0) -> np.ndarray:
+    """Where the vehicle came to rest: means of successive 20-report windows (1 s) until two
+    in a row are within ``still_m``. PX4 comes back from its overshoot past the end at under
+    0.5 m/s, so :func:`hovering` passes while it is still 0.1-0.8 m away (seen in 6 runs)."""
+    end = asyncio.get_running_loop().time() + timeout_s
+    prev = await mean_position(gs)
+    while True:
+        cur = await mean_position(gs)
+        if float(np.linalg.norm(cur - prev)) < still_m:
+            return cur
+        if asyncio.get_running_loop().time() > end:
+            raise TimeoutError(f"the vehicle did not come to rest within {timeout_s} s")
+        prev = cur
+
+
+#: End miss allowed (m). sitl: 0.5 (as always). PX4: see END_MISS_PX4_M.
+END_MISS_M = {"sim": 0.5, "px4": 0.5}
+
+
 @pytest.mark.parametrize("backend", ["sim", "px4"])
 def test_service_flies_10_m_and_lands(backend):
     with vehicle(backend) as port, tempfile.TemporaryDirectory() as state:
@@ -75,7 +94,7 @@ def test_service_flies_10_m_and_lands(backend):
                 await gs.wait_for(lambda s: s.get("trajectory_id") == "ten", 10, "the plan")
                 await gs.wait_for(lambda s: s.get("command") == "hold", 40, "the end")
                 await hovering(gs)  # the overshoot past the end is over
-                p1 = await mean_position(gs)
+                p1 = await settled_position(gs)
                 assert (await gs.command("land"))["ok"]
                 await gs.wait_for(lambda s: s["state"] == "ready" and not s["armed"], 60,
                                   "landed and disarmed")
@@ -84,4 +103,4 @@ def test_service_flies_10_m_and_lands(backend):
         p0, p1 = asyncio.run(main())
         miss = float(np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])))
         print(f"{backend}: end miss {miss:.3f} m")
-        assert miss < 0.5
+        assert miss < END_MISS_M[backend]
