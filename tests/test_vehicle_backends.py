@@ -75,8 +75,13 @@ async def settled_position(gs, still_m: float = 0.05, timeout_s: float = 30.0) -
         prev = cur
 
 
-#: End miss allowed (m). sitl: 0.5 (as always). PX4: see END_MISS_PX4_M.
-END_MISS_M = {"sim": 0.5, "px4": 0.5}
+#: End miss allowed (m). sitl: 0.5 m, as always. PX4: its rest point, measured the way this
+#: test measures it (settled_position) in 5 runs on this 2-core machine with both cores
+#: busy (load average 5-24): 0.16, 0.19, 0.27, 0.40, 0.54 m (mean 0.31, sd 0.15); the limit is
+#: the mean + 3 sd, 0.8 m. (Before settled_position: 0.28-0.83 m in 6 runs, the vehicle still
+#: on its way back from the overshoot.) A frame error or a dropped trajectory misses by
+#: metres.
+END_MISS_M = {"sim": 0.5, "px4": 0.8}
 
 
 @pytest.mark.parametrize("backend", ["sim", "px4"])
