@@ -235,7 +235,17 @@ class TierFlight:
         raise TimeoutError(f"{ident} not flown: {self.retries[-3:]}")
 
     async def under_way(self, share: float = 0.15) -> None:
-        await self.gs.wait_for(lambda s: (s.get("progress") or 0) >= share, 30, "speed")
+        """Wait until the trajectory flown is ``share`` done; a flight halted on the way by
+        a stall of the busy machine (as it must be) starts again and flies on."""
+        for attempt in range(3):
+            s = await self.gs.wait_for(lambda s: (s.get("progress") or 0) >= share
+                                       or s.get("halted"), 30, "speed")
+            if not s.get("halted"):
+                return
+            self.retries.append(f"under way: {s['halted']}")
+            await start_holding(self.gs)
+            await self.fly_toward(f"again-{attempt}")
+        raise TimeoutError(f"not under way: {self.retries[-3:]}")
 
     def stall(self, seconds: float) -> tuple[float, float]:
         """Freeze the service (SIGSTOP) for ``seconds``: the fault itself, so a timed wait."""

@@ -79,7 +79,7 @@ def test_forest_flight_with_a_replan(flight):
         await f.ready_to_fly()
         t0 = time.monotonic()
         goal = await f.fly_toward("forest-0")
-        await f.gs.wait_for(lambda s: (s.get("progress") or 0) >= 0.4, 60, "half-way")
+        await f.under_way(0.4)
         await f.fly_toward("forest-1", goal)
         local = goal - f.home
         for attempt in range(3):
