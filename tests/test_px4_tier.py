@@ -1,11 +1,12 @@
 """The PX4 tier: the service's promises checked against real PX4 SITL (SIH quadrotor, when
 ``ROTA_PX4_BUILD`` names a build; otherwise skipped, saying why) and the ``sitl`` vehicle,
 with the same assertions. One flight per backend through the demo's forest, shared by the
-scenarios below in order (each first brings the vehicle back to "airborne, OFFBOARD,
-holding" whatever the one before left); the two backends run on the two test workers in
-parallel (``xdist_group``). What the autopilot did is read from what it reports on its own
-GCS link (modes, arming, landed state), clearance from the simulator's ground truth
-(``HIL_STATE_QUATERNION``): companion/tier.py, sitl/observer.py.
+scenarios below (each first brings the vehicle back to "airborne, OFFBOARD, holding"
+whatever the one before left, so none depends on another's order); each backend's
+scenarios go to one test worker (``xdist_group``, tests/conftest.py). What the autopilot
+did is read from what it reports on its own GCS link (modes, arming, landed state),
+clearance from the simulator's ground truth (``HIL_STATE_QUATERNION``): companion/tier.py,
+sitl/observer.py.
 
 Limits and why (measured spreads in docs/sitl.md, "The PX4 tier"):
 * clearance: the demo's planner keeps 1.0 m from trunks (companion/demo.py); the tier asserts
