@@ -39,6 +39,11 @@ class ServiceSection:
     nice: int = -5  # CPU priority of the service (needs CAP_SYS_NICE; else it says so)
 
 
+#: Measured on PX4 SITL (docs/service.md, "Stalls"): the least time (s) before PX4's
+#: offboard-loss timeout at which a resumed stream is still sure to reach PX4 in time.
+OFFBOARD_LOSS_MARGIN_S = 0.3
+
+
 @dataclass(frozen=True)
 class MavlinkSection:
     url: str = "udpin://127.0.0.1:14540"  # MAVSDK connection URL (PX4 offboard link)
@@ -47,6 +52,9 @@ class MavlinkSection:
     link_timeout_s: float = 1.5  # no telemetry for this long = link lost
     # PX4's COM_OF_LOSS_T; the smaller of this and the value read from PX4 is used
     offboard_loss_timeout_s: float = 1.0
+    # a stall may end in a hold in OFFBOARD only if the stream's last setpoint was sent less
+    # than (offboard-loss timeout - this) ago; otherwise the stream ends (docs/service.md)
+    offboard_loss_margin_s: float = OFFBOARD_LOSS_MARGIN_S
 
 
 @dataclass(frozen=True)
@@ -347,6 +355,11 @@ def validate(cfg: Config) -> None:
         positive(section, name)
     if not cfg.uncertainty.d_th >= 0:
         raise ConfigError(f"[uncertainty] d_th: must be >= 0, got {cfg.uncertainty.d_th!r}")
+    m = cfg.mavlink
+    if not 0.05 <= m.offboard_loss_margin_s < m.offboard_loss_timeout_s:
+        raise ConfigError("[mavlink] offboard_loss_margin_s: must be at least 0.05 s (what a "
+                          "setpoint takes to reach PX4 on a busy machine) and below "
+                          f"offboard_loss_timeout_s, got {m.offboard_loss_margin_s!r}")
     s = cfg.stream
     if s.rate_hz < 2.5:
         raise ConfigError("[stream] rate_hz: PX4 needs offboard setpoints faster than 2 Hz")

@@ -26,9 +26,12 @@ Two promises are kept here, whatever happens elsewhere:
   loop (or of the whole process) the plan's "now" has run ahead. A stall longer
   than ``stream.stall_budget_s`` is detected before anything is sent: the stream
   brakes from the last setpoint it sent and holds, and a new ``start`` is needed
-  to fly trajectories again. A stall that PX4's offboard-loss failsafe may have
-  seen (``offboard_loss_timeout`` x :data:`LOSS_SHARE`) ends the stream
-  altogether: resumed setpoints would take PX4 back into OFFBOARD by themselves.
+  to fly trajectories again, in OFFBOARD, as long as the stream's own send times prove
+  that PX4 has not timed out: the last setpoint went out less than PX4's offboard-loss
+  timeout minus ``mavlink.offboard_loss_margin_s`` ago (:meth:`SetpointStream.resume_limit`;
+  no setpoint is sent later than that either). A longer gap ends the stream altogether:
+  PX4's failsafe may have the vehicle, and resumed setpoints would take PX4 back into
+  OFFBOARD by themselves.
 """
 
 from __future__ import annotations
@@ -66,7 +69,7 @@ log = logging.getLogger("rota.companion")
 
 #: Share of the smallest acceleration limit used to brake to a hold.
 BRAKE_SHARE = 0.7
-#: A stall longer than this share of PX4's offboard-loss timeout ends the stream.
+#: Telemetry older than this share of PX4's offboard-loss timeout ends the stream.
 LOSS_SHARE = 0.8
 #: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
 STEP_SLACK_M = 0.01
@@ -349,13 +352,24 @@ class SetpointStream:
         px4 = self.autopilot.offboard_loss_timeout_s
         return cfg if px4 is None or not px4 > 0 else min(cfg, px4)
 
+    def resume_limit(self) -> float:
+        """The longest time (s) since the last setpoint sent after which the stream may
+        still send: PX4 cannot have timed out (its offboard-loss timeout minus the margin
+        measured on PX4, ``mavlink.offboard_loss_margin_s``)."""
+        return self.loss_timeout() - self._cfg().mavlink.offboard_loss_margin_s
+
     def _stalled(self, stall: float, now: float, why: str = "") -> None:
-        """``why``: the kernel's account of the stall (:meth:`TickClock.explain`)."""
+        """``why``: the kernel's account of the stall (:meth:`TickClock.explain`). Brakes to
+        a hold (in OFFBOARD) if the last setpoint went out less than :meth:`resume_limit`
+        ago, else ends the stream."""
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, stall)
         what = f"the service was stalled for {stall:.2f} s" + (f" ({why})" if why else "")
-        if stall >= LOSS_SHARE * self.loss_timeout():
-            self._end(f"{what} (PX4's offboard-loss timeout is {self.loss_timeout():.2f} s)")
+        gap = now - self.last_send_time if self.last_sent is not None else stall
+        if gap >= self.resume_limit():
+            self._end(f"{what}, {gap:.2f} s since the last setpoint (PX4's offboard-loss "
+                      f"timeout is {self.loss_timeout():.2f} s; the stream resumes only within "
+                      f"{self.resume_limit():.2f} s)")
         elif self.halted is None or not isinstance(self.source, Hold):
             self.halt(f"{what} (budget {self._cfg().stream.stall_budget_s} s)", now)
 
@@ -378,6 +392,13 @@ class SetpointStream:
             # OFFBOARD on the first one)
             self._end(f"no telemetry from PX4 for {age:.2f} s")
             return
+        gap = now - self.last_send_time
+        if self.last_sent is not None and gap >= self.resume_limit():
+            # (a stall of the stream's thread alone, or a send held up: nothing went out
+            # for as long as PX4 may take to time out)
+            self._end(f"no setpoint sent for {gap:.2f} s (PX4's offboard-loss timeout is "
+                      f"{self.loss_timeout():.2f} s)")
+            return
         if self.next_plan is not None and now >= self.next_plan.t0:
             self.take_over(now)
         if isinstance(self.source, Plan | Brake) and self.source.finished(now):
@@ -396,11 +417,14 @@ class SetpointStream:
                 self._end(f"no safe setpoint after: {problem}")
                 return
         self._update_yaw(cmd)
+        not_after = now + self._cfg().stream.stall_budget_s
+        if self.last_sent is not None:
+            not_after = min(not_after, self.last_send_time + self.resume_limit())
         try:
             # a setpoint computed before a stall is not sent after it (the next tick
-            # sees the stall)
+            # sees the stall), nor later than PX4 is sure to be waiting for it
             sent = self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
-                                       self.yaw_ned, now, now + self._cfg().stream.stall_budget_s)
+                                       self.yaw_ned, now, not_after)
         except Exception as exc:  # noqa: BLE001 - the link monitor reports a dead link
             log.warning("setpoint send failed: %s", exc)
             return

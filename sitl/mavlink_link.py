@@ -17,6 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import development as _DEV
 
 from sitl.commander import Commander
 from sitl.dynamics import Setpoint, euler_from_rotation, quaternion_from_rotation
@@ -61,6 +62,10 @@ class LinkedVehicle(Protocol):
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """Estimated position and velocity (NED)."""
+        ...
+
+    def true_state(self) -> Any:
+        """Ground truth (``position_ned``, ``velocity_ned``)."""
         ...
 
     def attitude(self) -> tuple[np.ndarray, float, float]:
@@ -359,6 +364,8 @@ class MavlinkLink:
             _M.MAVLINK_MSG_ID_BATTERY_STATUS: self._send_battery_status,
             _M.MAVLINK_MSG_ID_HOME_POSITION: self._send_home_position,
             _M.MAVLINK_MSG_ID_SYSTEM_TIME: self._send_system_time,
+            _M.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: self._send_hil_state_quaternion,
+            _DEV.MAVLINK_MSG_ID_CURRENT_MODE: self._send_current_mode,
         }
 
     def send_due_telemetry(self) -> None:
@@ -508,6 +515,24 @@ class MavlinkLink:
         self.send(self.mav.home_position_encode(
             lat, lon, int(round(alt * 1000)), float(home[0]), float(home[1]), float(home[2]),
             [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.vehicle.time_s * 1e6)))
+
+    def _send_hil_state_quaternion(self) -> None:
+        """The ground truth, as PX4's SIH sends it on its display link (off unless asked for
+        with SET_MESSAGE_INTERVAL)."""
+        truth = self.vehicle.true_state()
+        p, v = truth.position_ned, truth.velocity_ned
+        r, yaw_rate = self.vehicle.attitude()[0], self.vehicle.attitude()[2]
+        q = quaternion_from_rotation(r)
+        lat, lon, alt = self._latlon(p)
+        self.send(self.mav.hil_state_quaternion_encode(
+            int(self.vehicle.time_s * 1e6), list(q), 0.0, 0.0, yaw_rate, lat, lon,
+            int(round(alt * 1000)), int(round(v[0] * 100)), int(round(v[1] * 100)),
+            int(round(v[2] * 100)), 0, 0, 0, 0, 0))
+
+    def _send_current_mode(self) -> None:
+        """CURRENT_MODE (MAVLink's development set, as PX4 sends it; off unless asked for)."""
+        mode = self.vehicle.commander.mode.custom_mode
+        self.send(_DEV.MAVLink_current_mode_message(0, mode, mode))
 
     def _send_system_time(self) -> None:
         self.send(self.mav.system_time_encode(int(time.time() * 1e6), self._time_boot_ms()))

@@ -58,7 +58,7 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
     sim = SimVehicle(params, estimation=est, world=world, seed=options["seed"],
                      port=options["port"], record_history=True, history_decimation=5)
     sim.start()
-    conn.send(("ready", sim.local_port, home))
+    conn.send(("ready", sim.local_port, home, sim.gcs_port))
     try:
         while True:
             if not conn.poll(0.05):
@@ -125,6 +125,8 @@ class SimProcess:
                         "params": params or {}, "estimation": estimation or {}}
         self.report: SimReport | None = None
         self.home_enu = np.zeros(3)
+        self.local_port: int | None = None
+        self.gcs_port: int | None = None  # the vehicle's GCS-like link (sitl.observer)
         self._ctx = multiprocessing.get_context("spawn")
         self._conn: Any = None
         self._proc: Any = None
@@ -139,7 +141,7 @@ class SimProcess:
         if not parent.poll(60):
             self._proc.kill()
             raise RuntimeError("simulated vehicle did not start")
-        _, self.local_port, home = parent.recv()
+        _, self.local_port, home, self.gcs_port = parent.recv()
         self.home_enu = np.asarray(home, dtype=float)
         return self
 

@@ -11,10 +11,17 @@ and has a local position, not after a fixed time. PX4's console log (``px4.log``
 flight logs (``log/**/*.ulg``) stay in the working directory, which is kept (and its path
 printed) when the ``with`` block raises or ``keep=True``; set ``ROTA_PX4_KEEP=1`` to keep it
 always.
+
+PX4's start-up script runs its commands (``px4-param``, ``px4-commander``...) through the
+``px4-*`` links beside ``bin/px4``. A build copied without its symbolic links (each
+``px4-*`` then a small text file naming ``px4``, not executable) cannot boot from there, so
+PX4 always runs from a ``bin/`` of links in its working directory: the build itself is only
+read.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import socket
@@ -31,7 +38,7 @@ PX4_ENV = "ROTA_PX4_BUILD"
 KEEP_ENV = "ROTA_PX4_KEEP"
 PX4_PORT = 14540  #: the offboard link's UDP port of instance 0 (instance i: 14540 + i)
 #: local UDP ports PX4 instance i binds (px4-rc.mavlink): base + i
-_BOUND_PORTS = (14580, 18570, 14280, 13030, 19450)
+_BOUND_PORTS = (14580, 18570, 14280, 13030, 19450, 19410)  # 19410: SIH's truth, to us
 _MAX_INSTANCES = 10  # PX4 reuses 14549 for instances above 9
 
 
@@ -64,13 +71,48 @@ def _udp_free(port: int) -> bool:
 _IN_USE: set[int] = set()  # instances of this process (still booting ones bind nothing yet)
 
 
-def free_instance() -> int:
-    """The first PX4 instance number not used by this process whose UDP ports are all free
-    on 127.0.0.1."""
+def _claim(instance: int) -> int | None:
+    """An exclusive lock on PX4 instance ``instance`` across processes (a PX4 still booting
+    binds nothing yet, so two test workers could otherwise pick the same one): the open
+    lock file's descriptor, or None if another process holds it."""
+    path = Path(tempfile.gettempdir()) / f"rota-px4-instance-{instance}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def free_instance() -> tuple[int, int]:
+    """The first PX4 instance number no process of ours uses whose UDP ports are all free
+    on 127.0.0.1, and the descriptor of its lock (close it to release the instance)."""
     for i in range(_MAX_INSTANCES):
-        if i not in _IN_USE and all(_udp_free(base + i) for base in (PX4_PORT, *_BOUND_PORTS)):
-            return i
+        if i in _IN_USE:
+            continue
+        fd = _claim(i)
+        if fd is None:
+            continue
+        if all(_udp_free(base + i) for base in (PX4_PORT, *_BOUND_PORTS)):
+            return i, fd
+        os.close(fd)
     raise RuntimeError(f"no free PX4 SITL instance (ports 14540-{14540 + _MAX_INSTANCES - 1})")
+
+
+def _link_commands(build: Path, workdir: Path) -> Path:
+    """``workdir/bin``: ``px4`` (a link to the build's) and its ``px4-*`` command links, made
+    afresh (a copied build may have lost its links); the ``px4`` to run."""
+    bin_dir = workdir / "bin"
+    bin_dir.mkdir()
+    px4 = bin_dir / "px4"
+    px4.symlink_to((build / "bin" / "px4").resolve())
+    for entry in (build / "bin").iterdir():
+        if entry.name.startswith("px4-"):
+            # px4-alias.sh is a script of its own; every other px4-* is px4 by another name
+            target = entry.resolve() if entry.suffix == ".sh" else Path("px4")
+            (bin_dir / entry.name).symlink_to(target)
+    return px4
 
 
 class Px4Sitl:
@@ -100,6 +142,7 @@ class Px4Sitl:
         self.workdir: Path | None = None
         self._proc: subprocess.Popen | None = None
         self._log = None
+        self._lock_fd: int | None = None
 
     @property
     def log_path(self) -> Path | None:
@@ -111,7 +154,7 @@ class Px4Sitl:
         return sorted(self.workdir.glob("**/*.ulg")) if self.workdir is not None else []
 
     def __enter__(self) -> Px4Sitl:
-        self.instance = free_instance()
+        self.instance, self._lock_fd = free_instance()
         _IN_USE.add(self.instance)
         self.port = PX4_PORT + self.instance
         self.workdir = Path(tempfile.mkdtemp(prefix=f"rota-px4-{self.instance}-"))
@@ -121,7 +164,7 @@ class Px4Sitl:
         env.update({f"PX4_PARAM_{k}": str(v) for k, v in self.params.items()})
         self._log = open(self.workdir / "px4.log", "w")  # noqa: SIM115 - closed in __exit__
         self._proc = subprocess.Popen(
-            [str(self.build / "bin" / "px4"), "-i", str(self.instance), "-d",
+            [str(_link_commands(self.build, self.workdir)), "-i", str(self.instance), "-d",
              "-w", str(self.workdir), str(self.build / "etc")],
             env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
         try:
@@ -168,6 +211,9 @@ class Px4Sitl:
                 self._proc.wait(5)
         self._proc = None
         _IN_USE.discard(self.instance)
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
         if self._log is not None:
             self._log.close()
             self._log = None

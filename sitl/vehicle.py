@@ -8,6 +8,9 @@ its onboard (companion) link:
 
 * the vehicle sends from ``127.0.0.1:<bind_port>`` to ``127.0.0.1:<port>`` (default 14540, so
   MAVSDK uses ``udpin://127.0.0.1:14540``) and answers every loopback peer that talks to it;
+* a second endpoint like PX4's GCS link (:attr:`SimVehicle.gcs_port`, any free port) sends the
+  same telemetry, at rates of its own, to whoever talks to it (a passive observer:
+  :mod:`sitl.observer`); a link loss (:attr:`SimVehicle.link_blocked`) leaves it alone;
 * two clocks: real time in a background thread (``with SimVehicle(...) as sim:`` or
   :meth:`SimVehicle.start`) for MAVSDK, or a simulated clock without any networking
   (:meth:`SimVehicle.step` / :meth:`SimVehicle.run_for`) for fast, deterministic experiments.
@@ -195,7 +198,8 @@ class SimVehicle:
         self._decim = max(1, int(history_decimation))
         self.history = History()
         self.link = MavlinkLink(self)
-        self.commander = Commander(p, self, self.link.statustext)
+        self.gcs_link = MavlinkLink(self)  # like PX4's GCS link: its own peers and rates
+        self.commander = Commander(p, self, self._statustext)
         self._thread: threading.Thread | None = None
         self._stop_evt = threading.Event()
         self.thread_error: BaseException | None = None
@@ -211,6 +215,15 @@ class SimVehicle:
     def local_port(self) -> int | None:
         """The vehicle's bound UDP port while running, else None."""
         return self.link.local_port
+
+    @property
+    def gcs_port(self) -> int | None:
+        """The bound UDP port of the GCS-like link while running, else None."""
+        return self.gcs_link.local_port
+
+    def _statustext(self, text: str, severity: int) -> None:
+        self.link.statustext(text, severity)
+        self.gcs_link.statustext(text, severity)
 
     @property
     def running(self) -> bool:
@@ -437,6 +450,8 @@ class SimVehicle:
         if self.running:
             return self
         self.link.open(self.port, self.bind_port)
+        self.gcs_link.open(0, 0)
+        self.gcs_link.peers = []  # nobody until an observer talks to it
         self._stop_evt.clear()
         self._thread = threading.Thread(target=self._loop, name="SimVehicle", daemon=True)
         self._thread.start()
@@ -449,6 +464,7 @@ class SimVehicle:
             self._thread.join(timeout=5.0)
         self._thread = None
         self.link.close()
+        self.gcs_link.close()
 
     def __enter__(self) -> SimVehicle:
         return self.start()
@@ -461,14 +477,14 @@ class SimVehicle:
         wall0 = time.monotonic()
         sim0 = self.time_s
         next_tick = wall0
-        sock = self.link.sock
+        links = {self.link.sock: self.link, self.gcs_link.sock: self.gcs_link}
         try:
             while not self._stop_evt.is_set():
                 timeout = max(0.0, next_tick - time.monotonic())
-                ready, _, _ = select.select([sock], [], [], timeout)
-                if ready:
+                ready, _, _ = select.select(list(links), [], [], timeout)
+                for sock in ready:
                     with self._lock:
-                        self.link.drain()
+                        links[sock].drain()
                 now = time.monotonic()
                 if now >= next_tick:
                     with self._lock:
@@ -479,6 +495,8 @@ class SimVehicle:
                             target = sim0 + (now - wall0)
                         self._advance_to(target)
                         self.link.send_due_telemetry()
+                        if self.gcs_link.peers:
+                            self.gcs_link.send_due_telemetry()
                     next_tick += tick
                     if next_tick < now:
                         next_tick = now + tick

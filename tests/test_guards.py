@@ -19,7 +19,7 @@ from companion.autopilot import Telemetry
 from companion.config import from_dict
 from companion.decoder import Decoder
 from companion.inputs import RateLimit
-from companion.plan import Command, Plan
+from companion.plan import Command, Hold, Plan
 from companion.status import Reporter
 from companion.stream import LOSS_SHARE, SetpointStream
 from companion.worker import Worker, WorkerDied, describe_exit, worker_nice
@@ -150,6 +150,31 @@ def test_a_stall_brakes_from_the_last_setpoint_sent_along_the_path_and_a_long_on
     assert abs(stop[1]) < 1e-9 and abs(stop[2] - 1.0) < 1e-9 and stop[0] > sent.position[0]
     s._stalled(LOSS_SHARE * 1.0 + 0.01, 111.0)
     assert not s.streaming and halts == [False, True]
+
+
+def test_a_stall_the_send_times_prove_px4_has_not_timed_out_on_holds_in_offboard():
+    """The decision is made on the time since the last setpoint sent, against PX4's
+    timeout minus the margin measured on PX4 (1.0 - 0.3 s by default): just under it the
+    stream brakes to a hold and goes on sending; past it, the stream ends."""
+    limit = 1.0 - CFG.mavlink.offboard_loss_margin_s
+    for gap, ends in [(limit - 0.01, False), (limit + 0.001, True)]:
+        plan = _line_plan(100.0)
+        sent = plan.command(102.0)
+        s = _stream(sent.position, sent.velocity)
+        s.last_send_time, s.source = 102.0, plan
+        halts = []
+        s.on_halt = lambda reason, ended, halts=halts: halts.append(ended)
+        s._stalled(gap, 102.0 + gap)
+        assert s.resume_limit() == limit
+        assert s.streaming is not ends and halts == [ends], (gap, s.halted)
+
+
+def test_no_setpoint_is_sent_later_than_px4_is_sure_to_wait_for_it():
+    s = _stream([0.0, 0.0, 1.0])
+    s.source = Hold(np.array([0.0, 0.0, 1.0]), "test")
+    s.autopilot.telemetry.position_time = 100.5
+    s._step(100.001 + s.resume_limit())  # nothing went out since 100.0: too late to resume
+    assert not s.streaming and "no setpoint sent for" in s.halted
 
 
 def test_no_setpoint_goes_out_once_the_vehicle_is_silent():

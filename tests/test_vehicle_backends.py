@@ -60,6 +60,32 @@ async def mean_position(gs, samples: int = 20, timeout_s: float = 20.0) -> np.nd
     return np.mean(seen, axis=0)
 
 
+async def settled_position(gs, still_m: float = 0.15, timeout_s: float = 30.0) -> np.ndarray:
+    """Where the vehicle came to rest: means of successive 20-report windows (1 s) until two
+    in a row are within ``still_m``. PX4 comes back from its overshoot past the end at under
+    0.5 m/s, so :func:`hovering` passes while it is still 0.1-0.8 m away (seen in 6 runs);
+    hover wander alone (std 0.16-0.28 m per axis, docs/sitl.md) moved the 1-s mean of the
+    ``sitl`` vehicle by more than 5 cm for 30 s in one run, so ``still_m`` is 0.15 m."""
+    end = asyncio.get_running_loop().time() + timeout_s
+    prev = await mean_position(gs)
+    while True:
+        cur = await mean_position(gs)
+        if float(np.linalg.norm(cur - prev)) < still_m:
+            return cur
+        if asyncio.get_running_loop().time() > end:
+            raise TimeoutError(f"the vehicle did not come to rest within {timeout_s} s")
+        prev = cur
+
+
+#: End miss allowed (m). sitl: 0.5 m, as always. PX4: its rest point, measured the way this
+#: test measures it (settled_position) in 5 runs on this 2-core machine with both cores
+#: busy (load average 5-24): 0.16, 0.19, 0.27, 0.40, 0.54 m (mean 0.31, sd 0.15); the limit is
+#: the mean + 3 sd, 0.8 m. (Before settled_position: 0.28-0.83 m in 6 runs, the vehicle still
+#: on its way back from the overshoot.) A frame error or a dropped trajectory misses by
+#: metres.
+END_MISS_M = {"sim": 0.5, "px4": 0.8}
+
+
 @pytest.mark.parametrize("backend", ["sim", "px4"])
 def test_service_flies_10_m_and_lands(backend):
     with vehicle(backend) as port, tempfile.TemporaryDirectory() as state:
@@ -75,7 +101,7 @@ def test_service_flies_10_m_and_lands(backend):
                 await gs.wait_for(lambda s: s.get("trajectory_id") == "ten", 10, "the plan")
                 await gs.wait_for(lambda s: s.get("command") == "hold", 40, "the end")
                 await hovering(gs)  # the overshoot past the end is over
-                p1 = await mean_position(gs)
+                p1 = await settled_position(gs)
                 assert (await gs.command("land"))["ok"]
                 await gs.wait_for(lambda s: s["state"] == "ready" and not s["armed"], 60,
                                   "landed and disarmed")
@@ -84,4 +110,4 @@ def test_service_flies_10_m_and_lands(backend):
         p0, p1 = asyncio.run(main())
         miss = float(np.linalg.norm(p1 - (p0 + [10.0, 0.0, 0.0])))
         print(f"{backend}: end miss {miss:.3f} m")
-        assert miss < 0.5
+        assert miss < END_MISS_M[backend]
