@@ -113,9 +113,10 @@ def test_every_request_is_on_record_with_its_sender(tmp_path):
     make_fleet(Fleet(vehicles=("sim",), hosts={"sim": "127.0.0.1"},
                      loopback_port=free_tcp_port(), tls_port=free_tcp_port()), fleet)
     proc, log_path = _service(tmp_path, fleet)
-    gs = _wait("the service's listener", lambda: _open(fleet / "gs" / "zenoh-sim.json5"))
-    planner = zenoh.open(zenoh.Config.from_file(str(fleet / "planner-sim" / "zenoh.json5")))
+    gs = planner = None
     try:
+        gs = _wait("the service's listener", lambda: _open(fleet / "gs" / "zenoh-sim.json5"))
+        planner = zenoh.open(zenoh.Config.from_file(str(fleet / "planner-sim" / "zenoh.json5")))
         # the service answers once its queryables are declared (before warm-up ends)
         _wait("the service's config reply", lambda: _ask(gs, "rota/sim/config", timeout=2.0))
         refused = _ask(gs, "rota/sim/config", {"set": {"limits": {"v_max": 15.0}}})
@@ -129,11 +130,15 @@ def test_every_request_is_on_record_with_its_sender(tmp_path):
                 source_info=zenoh.SourceInfo(pub.id, 1))
         text = _wait("the refused trajectory in the log", lambda: (
             t := log_path.read_text()) and "(from planner-sim" in t and "denied" in t and t)
-    finally:
-        gs.close()
-        planner.close()
+    finally:  # (the service is stopped whatever happened: no orphan outlives the test)
+        for session in (gs, planner):
+            if session is not None:
+                session.close()
         proc.send_signal(signal.SIGTERM)
-        proc.wait(60)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
     gs_id = "gs (Zenoh peer"
     assert f"config from {gs_id}" in text and "refused: " in text, text[-3000:]
     assert f"cmd/hold from {gs_id}" in text
