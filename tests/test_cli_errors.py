@@ -149,6 +149,8 @@ def test_run_with_the_zenoh_port_taken_says_so(tmp_path):
     assert r.returncode == 1, r
     assert "Traceback" not in r.stdout + r.stderr
     assert f"cannot open Zenoh (tcp/127.0.0.1:{port})" in r.stderr and "in use" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not list(tmp_path.rglob("*.mcap"))  # a failed start leaves no (empty) record
 
 
 def test_ctrl_c_on_run_stops_cleanly_without_a_traceback(tmp_path):

@@ -5,13 +5,11 @@ plans are shown as rejected (the rota plot, rota-gs replay). Issue 29."""
 from __future__ import annotations
 
 import json
-import socket
 import time
 
 import numpy as np
 import pytest
 
-from companion.demo import free_tcp_port
 from rota.cli import example_path
 from rota.voxelmap import VoxelMap
 from tests.test_cli_errors import _config, one_line_error, run
@@ -44,19 +42,6 @@ def test_shipped_config_as_a_user_who_cannot_write_var_lib(tmp_path):
     cfg.write_text(text.replace("/var/lib/rota-companion", str(blocker / "rota-companion")))
     one_line_error(run("rota-companion", "run", "--config", str(cfg)), 2,
                    "[service] state_dir")
-
-
-def test_a_failed_start_leaves_no_record(tmp_path):
-    port = free_tcp_port()
-    with socket.socket() as taken:
-        taken.bind(("127.0.0.1", port))
-        taken.listen()
-        cfg = _config(tmp_path, service={"state_dir": str(tmp_path)},
-                      zenoh={"listen": [f"tcp/127.0.0.1:{port}"]},
-                      mavlink={"url": f"udpin://127.0.0.1:{free_tcp_port()}"})
-        r = run("rota-companion", "run", "--config", cfg)
-    one_line_error(r, 1, "cannot open Zenoh")
-    assert not list(tmp_path.rglob("*.mcap"))
 
 
 def _results(tmp_path):
