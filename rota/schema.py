@@ -57,7 +57,8 @@ TYPE_FIELDS = {"bspline": ("degree", "control_points", "knot_span", "knots"),
 #: The fields of a result message (:func:`result_to_dict`).
 RESULT_FIELDS = ("schema", "version", "id", "frame", "status", "message", "warnings",
                  "duration", "input_duration", "tau", "beta", "t", "speed_limits", "solver",
-                 "braking_zones", "trajectory", "setpoints")
+                 "braking_zones", "trajectory", "setpoints",
+                 "acc", "rest_start", "rest_end")  # (a jerk-limited result's time map)
 
 
 def check_fields(d: Mapping[str, Any], allowed: tuple[str, ...], what: str = "") -> None:
