@@ -165,7 +165,9 @@ def test_the_plan_shows_both_paths_speed_colours_and_braking_zones(flight):
         xs = [p.x for p in line.points]
         ends = res.trajectory.position(np.array([a, b]))[:, 0]
         assert min(xs) == pytest.approx(ends[0]) and max(xs) == pytest.approx(ends[1])
-        assert 3.5 < min(xs) <= max(xs) < 5.5  # before the pillar at x = 5
+        # before the pillar at x = 5 (its start follows the risk: 3.0 with this model;
+        # the exact ends are checked against the result just above)
+        assert 2.5 < min(xs) <= max(xs) < 5.5
     meta = {kv.key: kv.value for kv in entity.metadata}
     assert meta["plan"] == "plan-0" and meta["braking_zones"] == str(len(zones))
 
