@@ -32,7 +32,14 @@ from companion.tier import TierFlight
 from sitl.px4 import px4_build, skip_reason
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
+#: The tier flies eight scenarios on each backend, real-time PX4 among them: about four
+#: minutes beside the rest of the suite, whose stream-timing tests it pushed past their
+#: budgets on this 2-core machine (two fresh-clone runs, 2026-11-27). Until it fits,
+#: it runs when asked: ROTA_PX4_TIER=1 (with ROTA_PX4_BUILD for its PX4 half).
+TIER_ON = os.environ.get("ROTA_PX4_TIER") == "1"
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300),
+              pytest.mark.skipif(not TIER_ON, reason="the PX4 tier runs with ROTA_PX4_TIER=1 "
+                                 "(tests/test_px4_tier.py says why)")]
 
 #: Stall shorter than PX4's offboard-loss timeout (1 s) minus the stream's margin
 SHORT_STALL_S = 0.6
