@@ -2,9 +2,12 @@
 files (the log format that Foxglove and the ROS 2 tools open), JSON messages on
 one channel per kind.
 
-The service calls :meth:`Recorder.put` from its event loop, also for every
-setpoint at the stream rate, so ``put`` only appends to a bounded queue (well
-under a microsecond); a writer thread drains the queue, encodes and writes. When
+The service calls ``put`` from its event loop, also for every setpoint at the
+stream rate, so ``put`` only appends to a bounded queue (well under a
+microsecond); a writer thread drains the queue, encodes and writes. The service
+runs this :class:`Recorder` in a process of its own
+(:mod:`companion.record_process`): its encoding would hold the GIL the setpoint
+stream needs. When
 the writer falls behind and the queue is full, messages are dropped, counted
 and reported (a warning in the log, and ``dropped`` in :meth:`Recorder.stats`);
 the flight never waits for the disk. Files rotate at ``max_file_mb``; the
@@ -308,13 +311,6 @@ class NoRecorder:
 
     def log_handler(self, level: int = logging.INFO) -> logging.Handler:
         return logging.NullHandler()
-
-
-def recorder_for(settings: RecordSettings, state_dir: str, name: str) -> Recorder | NoRecorder:
-    """The service's recorder from its ``[record]`` settings."""
-    if not settings.enabled:
-        return NoRecorder()
-    return Recorder.from_settings(settings, state_dir, name)
 
 
 class _LogHandler(logging.Handler):

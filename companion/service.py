@@ -46,7 +46,7 @@ from companion.learning import Learning
 from companion.outbox import Outbox
 from companion.plan import Brake, Hold, Plan
 from companion.reconfigure import Reconfigure
-from companion.record import recorder_for
+from companion.record_process import recorder_for
 from companion.replanner import Replanner
 from companion.retimer import Retimer
 from companion.ros2.link import Ros2Link
