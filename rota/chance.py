@@ -166,6 +166,10 @@ class UncertaintyModel:
         return np.maximum(self.floor, self.m * speed + self.b)
 
 
+#: The smallest robot semi-axis (m) taken; below it the robot is a point (give 0).
+MIN_SEMI_AXIS_M = 1e-4
+
+
 @dataclass(frozen=True)
 class ChanceParams:
     """Parameters of the chance constraint (Eqs. 10-14) and the speed limits.
@@ -205,6 +209,10 @@ class ChanceParams:
             raise InputError(
                 "semi_axes", "must be all positive, or all zero for a point robot"
             )
+        if any(0.0 < x < MIN_SEMI_AXIS_M for x in axes):
+            # (1 / a overflows for a subnormal a, and the robot is a point at that size)
+            raise InputError("semi_axes", f"must be at least {MIN_SEMI_AXIS_M:g} m, or all "
+                             f"zero for a point robot, got {axes}")
         object.__setattr__(self, "semi_axes", axes)
         object.__setattr__(self, "obstacle_std", _triple(self.obstacle_std, "obstacle_std"))
         vf = _number(self.v_floor, "v_floor", lo=0.0)

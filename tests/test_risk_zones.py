@@ -10,7 +10,14 @@ from hypothesis import strategies as st
 
 from rota import SampledTrajectory
 from rota.braking import BrakingParams, find_braking_zones
-from rota.chance import ChanceParams, UncertaintyModel, collision_probability, risk_reach
+from rota.chance import (
+    MIN_SEMI_AXIS_M,
+    ChanceParams,
+    UncertaintyModel,
+    collision_probability,
+    risk_reach,
+)
+from rota.errors import InputError
 from rota.robust import Safety, assess
 from rota.voxelmap import VoxelMap
 
@@ -35,7 +42,7 @@ def _world(rng: np.random.Generator) -> tuple[SampledTrajectory, VoxelMap]:
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), m=st.floats(0.0, 0.6), b=st.floats(-0.3, 0.2),
        floor=st.floats(0.0, 0.15), log_delta=st.floats(-6.0, -1.0),
-       radius=st.floats(0.0, 0.4), v_max=st.floats(0.8, 4.0),
+       radius=st.just(0.0) | st.floats(MIN_SEMI_AXIS_M, 0.4), v_max=st.floats(0.8, 4.0),
        memory=st.sampled_from([0.0, 1.0, 2.5]))
 def test_zones_are_where_the_chance_limit_falls_below_v_max(
         seed: int, m: float, b: float, floor: float, log_delta: float, radius: float,
@@ -106,3 +113,10 @@ def test_d_th_only_adds_and_paper_mode_is_eq6() -> None:
     ahead = np.einsum("ij,ij->i", o - pos, vel) >= 0.0
     assert np.all(both >= risk) and np.array_equal(both, risk | ((d <= 2.5) & ahead))
     np.testing.assert_array_equal(paper, (d <= 1.0) & ahead)
+
+
+def test_a_robot_smaller_than_the_smallest_semi_axis_is_refused_in_words():
+    """(hypothesis found 5e-324 m: 1 / a overflowed and the risk came out NaN)"""
+    with pytest.raises(InputError, match="semi_axes.*at least"):
+        ChanceParams(semi_axes=(5e-324,) * 3)
+    assert ChanceParams(semi_axes=(0.0,) * 3).point_robot
