@@ -166,8 +166,8 @@ class UncertaintyModel:
         return np.maximum(self.floor, self.m * speed + self.b)
 
 
-#: The smallest robot semi-axis (m) taken; below it the robot is a point (give 0).
-MIN_SEMI_AXIS_M = 1e-4
+#: The smallest robot semi-axis (m) taken (a micron); below it the robot is a point (give 0).
+MIN_SEMI_AXIS_M = 1e-6
 
 
 @dataclass(frozen=True)
