@@ -215,6 +215,44 @@ class _Plan:
     start: float | None = None  # UNIX time of its first setpoint
 
 
+@dataclass(frozen=True, eq=False)
+class PlanView:
+    """A re-timed plan as :class:`Scene` draws it, in arrays only: made where the
+    result is (the re-time worker, :func:`plan_view`) and drawn where ``rota`` is not
+    loaded (the flight record's process)."""
+
+    id: str
+    status: str
+    duration: float
+    t: np.ndarray  # real time of each node
+    tau: np.ndarray  # trajectory time of each node
+    limits: np.ndarray  # chance-constrained limit per node (NaN: none)
+    zones: tuple[tuple[float, float], ...]  # braking zones, in trajectory time
+    planned: np.ndarray  # (PATH_SAMPLES, 3) the path as planned
+    position: np.ndarray  # (PATH_SAMPLES, 3) the re-timed plan, evenly in time
+    speed: np.ndarray  # (PATH_SAMPLES,) its commanded speed
+    zone_paths: tuple[np.ndarray, ...]  # each braking zone's stretch of the path
+
+
+def plan_view(res: Any, result: dict[str, Any]) -> PlanView:
+    """The :class:`PlanView` of a :class:`rota.RetimeResult` ``res`` and its
+    ``rota/result`` message ``result`` (for the id, status, limits and zones)."""
+    limits = np.array([np.nan if x is None else x for x in
+                       result.get("speed_limits") or [None] * len(res.t)], float)
+    zones = tuple((float(a), float(b)) for a, b in result.get("braking_zones", []))
+    traj = res.trajectory
+    span = max(traj.domain[1] - traj.domain[0], 1e-9)
+    sp = res.sample(np.linspace(0.0, res.duration, PATH_SAMPLES))
+    return PlanView(
+        id=str(result.get("id") or ""), status=str(result.get("status")),
+        duration=float(res.duration), t=np.asarray(res.t, float),
+        tau=np.asarray(res.tau, float), limits=limits, zones=zones,
+        planned=traj.position(np.linspace(*traj.domain, PATH_SAMPLES)),
+        position=np.asarray(sp.position), speed=np.linalg.norm(sp.velocity, axis=1),
+        zone_paths=tuple(traj.position(np.linspace(a, b, max(2, int(40 * (b - a) / span) + 2)))
+                         for a, b in zones))
+
+
 class Scene:
     """Foxglove messages from the service's messages. Keeps what later messages
     need (the speed limit, the plans' limits and braking zones, the heading).
@@ -243,8 +281,9 @@ class Scene:
             return []
         if isinstance(payload, bytes | bytearray | memoryview):
             payload = json.loads(bytes(payload))
-        if not isinstance(payload, dict) and not (channel == "map"
-                                                   and hasattr(payload, "occupied")):
+        drawn_apart = (channel == "map" and hasattr(payload, "occupied")) or \
+            (channel == "plan" and isinstance(payload, PlanView))
+        if not isinstance(payload, dict) and not drawn_apart:
             return []
         out = list(make(payload, stamp))
         for m in out:
@@ -283,40 +322,37 @@ class Scene:
                       fm.KeyValuePair(key="resolution_m", value=f"{res:g}")])]))
 
     def _retimed(self, result: dict[str, Any], stamp: float) -> Iterator[Out]:
+        """A ``rota/result`` message: rebuilt with ``rota`` (the live view, old records)."""
         from rota.schema import result_from_dict
 
         if result.get("status") == "rejected" or "tau" not in result:
             return
         res, _ = result_from_dict(result)
-        ident = str(result.get("id") or "")
-        limits = np.array([np.nan if x is None else x for x in
-                           result.get("speed_limits") or [None] * len(res.t)], float)
-        zones = [(float(a), float(b)) for a, b in result.get("braking_zones", [])]
-        self.plans[ident] = _Plan(res.t, res.tau, limits, zones)
-        traj = res.trajectory
-        planned = traj.position(np.linspace(*traj.domain, PATH_SAMPLES))
-        sp = res.sample(np.linspace(0.0, res.duration, PATH_SAMPLES))
-        speed = np.linalg.norm(sp.velocity, axis=1)
-        v_top = self.v_max or float(speed.max(initial=0.0)) or 1.0
-        rgb = speed_colours(speed, v_top)
+        yield from self._plan(plan_view(res, result), stamp)
+
+    def _plan(self, view: PlanView | None, stamp: float) -> Iterator[Out]:
+        """A plan drawn from its :class:`PlanView` (arrays only)."""
+        if not isinstance(view, PlanView):
+            return
+        self.plans[view.id] = _Plan(view.t, view.tau, view.limits, list(view.zones))
+        v_top = self.v_max or float(view.speed.max(initial=0.0)) or 1.0
+        rgb = speed_colours(view.speed, v_top)
         lines = [
             fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.04,
-                             scale_invariant=False, points=[_p3(p) for p in planned.tolist()],
+                             scale_invariant=False, points=[_p3(p) for p in view.planned.tolist()],
                              color=_rgba(PLANNED)),
             fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.1,
-                             points=[_p3(p) for p in sp.position.tolist()],
+                             points=[_p3(p) for p in view.position.tolist()],
                              colors=[_rgba((*c, 1.0)) for c in rgb.tolist()]),
         ]
-        for a, b in zones:
-            q = traj.position(np.linspace(a, b, max(2, int(40 * (b - a) / max(
-                traj.domain[1] - traj.domain[0], 1e-9)) + 2)))
+        for q in view.zone_paths:
             lines.append(fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip,
                                           thickness=0.3, points=[_p3(p) for p in q.tolist()],
                                           color=_rgba(ZONE)))
         t = _stamp(stamp)
         meta = [fm.KeyValuePair(key=k, value=str(v)) for k, v in (
-            ("plan", ident), ("status", result.get("status")),
-            ("duration_s", f"{res.duration:.2f}"), ("braking_zones", len(zones)),
+            ("plan", view.id), ("status", view.status),
+            ("duration_s", f"{view.duration:.2f}"), ("braking_zones", len(view.zones)),
             ("colour", f"commanded speed, blue 0 to red {v_top:g} m/s"))]
         yield _out("/foxglove/plan", fm.SceneUpdate(entities=[
             fm.SceneEntity(timestamp=t, frame_id=MAP_FRAME, id="plan", lines=lines,

@@ -144,6 +144,10 @@ class Recorder:
         #: Foxglove's messages for each one recorded (None: not written)
         self.scene: Scene | None = Scene(_pause) if foxglove else None
         self.scene_errors = 0
+        #: channels drawn for Foxglove from what :meth:`show` gives, not as recorded:
+        #: the map (its JSON would be parsed again) and, where the service gives plan
+        #: views, the re-timed results (drawing one needs ``rota``)
+        self.drawn_apart: frozenset[str] = frozenset({"map"})
 
     @classmethod
     def from_settings(cls, settings: RecordSettings, state_dir: str, name: str) -> Recorder:
@@ -217,7 +221,7 @@ class Recorder:
                     data = encode({"unencodable": str(exc)})
                 f.write(channel, data, stamp)
                 self.written += 1
-            if self.scene is not None and (view_only or channel != "map"):
+            if self.scene is not None and (view_only or channel not in self.drawn_apart):
                 self._write_scene(f, channel, payload, stamp)
             # Hand the GIL over between messages: a thread waiting for it (the event
             # loop, the setpoint stream) gets it now, not after Python's 5 ms switch

@@ -204,6 +204,9 @@ def _child(recv: Any, back: Any, settings: RecordSettings, state_dir: str, name:
     rlog.setLevel(level)
     rlog.propagate = False
     rec = Recorder.from_settings(settings, state_dir, name)
+    # the service shows every re-timed plan as a PlanView made in the re-time worker:
+    # this process draws it without loading rota (numba, scipy: 150 MB more)
+    rec.drawn_apart = frozenset({"map", "retimed"})
     opened = rec._open
 
     def _open() -> None:

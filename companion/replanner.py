@@ -30,7 +30,7 @@ log = logging.getLogger("rota.companion")
 class Replanner:
     def __init__(self, cfg: Callable[[], Config], retimer: Retimer, stream: SetpointStream,
                  uncertainty: Callable[[], UncertaintySource], report: Reporter,
-                 publish: Callable[[bytes, bytes], None]) -> None:
+                 publish: Callable[[bytes, bytes, Any], None]) -> None:
         self._cfg = cfg
         self.retimer = retimer
         self.stream = stream
@@ -118,6 +118,7 @@ class Replanner:
             braking=cfg.braking_params(), stitch_tolerance=cfg.safety.stitch_tolerance_m,
             solver_max_iter=cfg.limits.solver_max_iter,
             ros2=cfg.ros2 if cfg.ros2.enabled and cfg.ros2.retimed_topic else None,
+            view=cfg.record.enabled and cfg.record.foxglove,
             take_position=None if take is None else take.position,
             take_velocity=None if take is None else take.velocity,
             take_acceleration=None if take is None else take.acceleration)
@@ -139,7 +140,7 @@ class Replanner:
             "braking_zones": [[round(a, 3), round(b, 3)]
                               for a, b in result.extras.get("intervals", ())],
         }
-        self._publish(out.payload, out.ros2_payload)
+        self._publish(out.payload, out.ros2_payload, out.view)
         for w in result.warnings:
             self.report.warn(f"{incoming.id}: {w}")
         if result.status == REJECTED:

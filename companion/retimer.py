@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.foxglove import PlanView, plan_view
 from companion.ros2.encode import retimed_cdr
 from companion.ros2.settings import Ros2Settings
 from companion.stitch import StitchError, join
@@ -48,6 +49,7 @@ class ReplanJob:
     stitch_tolerance: float = 1.0
     solver_max_iter: int = 200
     ros2: Ros2Settings | None = None  # also build the ROS 2 message of the result
+    view: bool = False  # also make the plan's Foxglove view (companion.foxglove.PlanView)
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,7 @@ class ReplanOutcome:
     payload: bytes  # the rota/result message, b"" when rejected before re-timing
     rejected: str = ""  # why the trajectory cannot take over (stitching)
     ros2_payload: bytes = b""  # the result as a ROS 2 message (CDR), if asked for
+    view: PlanView | None = None  # the plan drawn for Foxglove, if asked for
 
 
 _MAP: VoxelMap | None = None  # the worker's current map
@@ -101,14 +104,18 @@ def _replan(job: ReplanJob) -> ReplanOutcome:
                                 solver=SolverSettings(max_iter=job.solver_max_iter)))
     seconds = time.perf_counter() - start
     msg = TrajectoryMessage(traj, id=job.id, frame="ENU", stamp=job.stamp)
-    payload = json.dumps(result_to_dict(result, msg), allow_nan=False).encode()
+    message = result_to_dict(result, msg)
+    payload = json.dumps(message, allow_nan=False).encode()
     ros2 = b""
     if job.ros2 is not None:  # here, not on the service's loop: it takes ~10 ms
         try:
             ros2 = retimed_cdr(result, job.ros2)
         except Exception:  # noqa: BLE001, S110 - the service goes on without the ROS copy
             pass
-    return ReplanOutcome(result, seconds, payload, ros2_payload=ros2)
+    # (here too: 1-2 ms in this process, and the flight record's process need not
+    # load rota to draw the plan)
+    view = plan_view(result, message) if job.view and result.status != "rejected" else None
+    return ReplanOutcome(result, seconds, payload, ros2_payload=ros2, view=view)
 
 
 class Retimer:

@@ -309,9 +309,12 @@ class Service:
 
         return made
 
-    def _put_retimed(self, payload: bytes, ros2: bytes = b"") -> None:
-        """A re-time's result, as JSON and (built in the worker) as a ROS 2 message."""
+    def _put_retimed(self, payload: bytes, ros2: bytes = b"", view: Any = None) -> None:
+        """A re-time's result, as JSON and (built in the worker) as a ROS 2 message and
+        the plan's Foxglove view (:class:`companion.foxglove.PlanView`)."""
         self.recorder.put("retimed", payload)
+        if view is not None:
+            self.recorder.show("plan", view)
         self.publisher.put_bytes("retimed", payload)
         if self.ros2 is not None and ros2:
             self.ros2.put("retimed", ros2)

@@ -60,29 +60,22 @@ async def mean_position(gs, samples: int = 20, timeout_s: float = 20.0) -> np.nd
     return np.mean(seen, axis=0)
 
 
-async def settled_position(gs, still_m: float = 0.15, timeout_s: float = 30.0) -> np.ndarray:
-    """Where the vehicle came to rest: means of successive 20-report windows (1 s) until two
-    in a row are within ``still_m``. PX4 comes back from its overshoot past the end at under
-    0.5 m/s, so :func:`hovering` passes while it is still 0.1-0.8 m away (seen in 6 runs);
-    hover wander alone (std 0.16-0.28 m per axis, docs/sitl.md) moved the 1-s mean of the
-    ``sitl`` vehicle by more than 5 cm for 30 s in one run, so ``still_m`` is 0.15 m."""
-    end = asyncio.get_running_loop().time() + timeout_s
-    prev = await mean_position(gs)
-    while True:
-        cur = await mean_position(gs)
-        if float(np.linalg.norm(cur - prev)) < still_m:
-            return cur
-        if asyncio.get_running_loop().time() > end:
-            raise TimeoutError(f"the vehicle did not come to rest within {timeout_s} s")
-        prev = cur
+async def rest_point(gs, window_s: float = 10.0) -> np.ndarray:
+    """Where the vehicle holds: the mean reported position over ``window_s`` once it
+    hovers. PX4 (SIH) does not come to rest at a hold: its estimate wanders around the
+    setpoint by up to 0.65 m at 0.3-0.5 m/s with a period of about 10 s (measured here,
+    setpoint exactly at the goal), so a 1-s mean stopped at a random phase of that
+    wander (this test's earlier measure) missed by 0.52-0.88 m in 4 runs; the mean
+    over a whole period averages it out."""
+    return await mean_position(gs, samples=int(20 * window_s), timeout_s=window_s + 20.0)
 
 
-#: End miss allowed (m). sitl: 0.5 m, as always. PX4: its rest point, measured the way this
-#: test measures it (settled_position) in 5 runs on this 2-core machine with both cores
-#: busy (load average 5-24): 0.16, 0.19, 0.27, 0.40, 0.54 m (mean 0.31, sd 0.15); the limit is
-#: the mean + 3 sd, 0.8 m. (Before settled_position: 0.28-0.83 m in 6 runs, the vehicle still
-#: on its way back from the overshoot.) A frame error or a dropped trajectory misses by
-#: metres.
+#: End miss allowed (m). sitl: 0.5 m, as always. PX4: its rest point measured as above
+#: (rest_point, a 10-s mean) in 8 runs on this 2-core machine, other PX4 instances and
+#: tests running beside it (load average 2-5): 0.295, 0.305, 0.325, 0.327, 0.331, 0.333,
+#: 0.340, 0.599 m (mean 0.36, sd 0.10; mean + 3 sd 0.65 m). The limit stays 0.8 m. (With a
+#: 1-s mean stopped at a random phase of the hover wander: 0.16-0.88 m, and CI saw 0.853.)
+#: A frame error or a dropped trajectory misses by metres.
 END_MISS_M = {"sim": 0.5, "px4": 0.8}
 
 
@@ -101,7 +94,7 @@ def test_service_flies_10_m_and_lands(backend):
                 await gs.wait_for(lambda s: s.get("trajectory_id") == "ten", 10, "the plan")
                 await gs.wait_for(lambda s: s.get("command") == "hold", 40, "the end")
                 await hovering(gs)  # the overshoot past the end is over
-                p1 = await settled_position(gs)
+                p1 = await rest_point(gs)
                 assert (await gs.command("land"))["ok"]
                 await gs.wait_for(lambda s: s["state"] == "ready" and not s["armed"], 60,
                                   "landed and disarmed")
