@@ -14,15 +14,18 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from companion import messages as msgs
 from companion.config import Config
 from companion.plan import Plan
 from companion.retimer import ReplanJob, Retimer
 from companion.status import Reporter
 from companion.stream import SetpointStream
-from companion.uncertainty import UncertaintySource
+from companion.uncertainty import UncertaintySource, origin
 from companion.worker import WorkerDied
-from rota.result import FALLBACK, REJECTED
+from rota.chance import risk_reach
+from rota.result import FALLBACK, REJECTED, RetimeResult
 
 log = logging.getLogger("rota.companion")
 
@@ -37,6 +40,9 @@ class Replanner:
         self._uncertainty = uncertainty
         self.report = report
         self._publish = publish
+        self._said: set[tuple[str, str]] = set()  # zone reports made (once per model)
+        #: the map's voxel size (m), None without a map (set by the service)
+        self.map_resolution: float | None = None
         self.flying: Callable[[], bool] = lambda: False  # set by the commander's owner
         self.latest: msgs.Incoming | None = None  # newest accepted trajectory
         self.newest_stamp: float | None = None  # stamp of the newest accepted trajectory
@@ -103,6 +109,32 @@ class Replanner:
                     self.report.error("retime", f"{incoming.id}: {type(exc).__name__}: {exc}")
                 break
 
+    def _report_zones(self, ident: str, result: RetimeResult, job: ReplanJob) -> None:
+        """A model that makes every point of a path a braking point, or whose risk band
+        around an obstacle is thinner than one voxel (it can never brake before one),
+        is said on status, once per model: flown, but not silently."""
+        if job.uncertainty is None or self.map_resolution is None:
+            return
+        u, c = job.uncertainty, job.chance
+        values = (f"m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} m, Delta={c.delta:g} "
+                  f"({origin(self._uncertainty().describe())})")
+        mask = result.extras.get("braking_mask")
+        if mask is not None and len(mask) > 2 and bool(np.all(mask)):
+            self._say_once(f"every point of trajectory {ident!r} is a braking point with the "
+                           f"model {values}: it flies at the chance-constrained limit all the "
+                           f"way; check the model, Delta and the planner's clearance",
+                           ("all", values))
+        band = risk_reach(u, c) - max(c.semi_axes)
+        if band < self.map_resolution:
+            self._say_once(f"the model {values} puts the risk band {band:.3f} m around an "
+                           f"obstacle, under one voxel ({self.map_resolution:g} m): no braking "
+                           f"zone can come before the path meets an obstacle", ("none", values))
+
+    def _say_once(self, message: str, key: tuple[str, str]) -> None:
+        if key not in self._said and len(self._said) < 100:
+            self._said.add(key)
+            self.report.warn(message)
+
     async def _retime_and_stitch(self, incoming: msgs.Incoming) -> None:
         """Replan in the worker: join the trajectory onto the commanded state at the
         predicted takeover time, re-time it; then schedule the takeover."""
@@ -143,8 +175,11 @@ class Replanner:
         self._publish(out.payload, out.ros2_payload, out.view)
         for w in result.warnings:
             self.report.warn(f"{incoming.id}: {w}")
+        self._report_zones(incoming.id, result, job)
         if result.status == REJECTED:
-            raise msgs.Rejected(f"trajectory {incoming.id!r}: {result.message}")
+            said = self._uncertainty().describe()
+            raise msgs.Rejected(f"trajectory {incoming.id!r}: {result.message} (the model is "
+                                f"{origin(said)})")
         if result.status == FALLBACK:
             self.report.warn(f"{incoming.id}: re-time failed ({result.message}); flying the "
                              f"uniformly slowed fallback")

@@ -29,3 +29,13 @@ class ConfiguredUncertainty:
     def describe(self) -> dict[str, Any]:
         return {"source": "config", "m": self._model.m, "b": self._model.b,
                 "per_axis": self._model.per_axis}
+
+
+def origin(desc: dict[str, Any]) -> str:
+    """Where the model in use came from, in words, from its ``describe()``."""
+    if desc.get("source") == "estimator" and desc.get("in_use") == "estimate":
+        return (f"learned in flight ({desc.get('evidence_s', 0):g} s of evidence, "
+                f"{desc.get('samples', 0)} samples)")
+    if desc.get("source") == "estimator":
+        return "configured ([uncertainty]; the estimator's own is not yet trusted)"
+    return "configured ([uncertainty])"
