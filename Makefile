@@ -26,7 +26,7 @@ $(STAMP): $(BASE)
 	touch $(STAMP)
 
 demo: $(BASE)
-	$(BIN)/rota-companion demo --out out/demo
+	$(BIN)/rota-sitl demo --out out/demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -1,14 +1,12 @@
 """rota-companion: the flight service's command line.
 
 Run the flight service (under systemd: Type=notify), check a configuration,
-fly the simulated demo, measure the setpoint stream's jitter, or prove the
-service: a long flight with replans at 10 Hz (soak), hostile and oversized
-messages on every input (fuzz); make a fleet's certificates and Zenoh
-configurations (fleet).
+or make a fleet's certificates and Zenoh configurations (fleet). The simulated
+demo and the proving flights are rota-sitl commands (sitl/flights_cli.py).
 
-Exit status: 0 success; 1 a failure at run time (the demo did not reach its
-goal, Zenoh or MAVLink could not be opened); 2 a bad configuration (the error
-names the setting); 130 interrupted (Ctrl-C).
+Exit status: 0 success; 1 a failure at run time (Zenoh or MAVLink could not be
+opened); 2 a bad configuration (the error names the setting); 130 interrupted
+(Ctrl-C).
 """
 
 from __future__ import annotations
@@ -187,73 +185,6 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    from companion.demo import run_demo
-
-    setup_logging("WARNING" if not args.verbose else "INFO")
-    try:
-        summary = run_demo(out_dir=args.out, seed=args.seed, speed=args.speed,
-                           px4_build=args.px4)
-    except TimeoutError as exc:  # a step of the flight did not happen in time
-        raise RunError(f"the demo did not complete: {exc}") from None
-    return 0 if summary["reached_goal"] and not summary["collisions"] else 1
-
-
-def cmd_bench_stream(args: argparse.Namespace) -> int:
-    from companion.bench_stream import run_bench_stream
-
-    _positive(args, "seconds")
-    setup_logging("WARNING")
-    run_bench_stream(args.out, args.seconds)
-    return 0
-
-
-def cmd_soak(args: argparse.Namespace) -> int:
-    from companion.soak import run_soak
-
-    _positive(args, "minutes")
-    setup_logging("WARNING")
-    figures = run_soak(args.minutes, seed=args.seed)
-    print(figures.summary())
-    for t, mb in figures.rss_mb:
-        print(f"  RSS at {t:7.1f} s: {mb:.1f} MB")
-    for e in figures.errors[:20]:
-        print(f"  error: {e}")
-    if figures.reaction_ms:
-        r = figures.reaction_ms
-        print(f"reaction, trajectory arrival to its first setpoint ({r['count']} replans): "
-              f"p50 {r['p50']} ms, p99 {r['p99']} ms, max {r['max']} ms; parts p50 (p99): "
-              + ", ".join(f"{k} {v} ({r['parts_p99'][k]})" for k, v in r["parts_p50"].items()))
-    for what, usage in (("replanning at 10 Hz", figures.replanning),
-                        ("holding, no replans", figures.holding)):
-        if usage is not None:
-            print(f"footprint of the service's process tree, {what}:\n{usage.table()}")
-    if args.out:
-        from dataclasses import asdict
-
-        Path(args.out).write_text(json.dumps(asdict(figures), indent=1, default=str) + "\n")
-    print("OK" if not figures.problems else "PROBLEMS: " + "; ".join(figures.problems))
-    return 0 if not figures.problems else 1
-
-
-def cmd_fuzz(args: argparse.Namespace) -> int:
-    from companion.fuzz import run_fuzz
-    from companion.proving import Flight
-
-    _positive(args, "examples")
-    setup_logging("WARNING")
-    flight = Flight(seed=args.seed)
-    with flight:
-        figures, window = run_fuzz(flight, args.examples, args.seed)
-    stream = flight.figures(window, flight.sim.report.setpoints)
-    print(figures.summary())
-    print(f"vehicle side: {stream.summary()}")
-    unsafe = stream.jumps + stream.outside_fence + stream.non_finite
-    print(f"unsafe setpoints: {unsafe}; largest gap {stream.max_gap_s * 1e3:.1f} ms; "
-          f"collisions: {len(flight.sim.report.collisions)}; service exit code "
-          f"{flight.exit_code}")
-    bad = figures.crashed or unsafe or stream.problems() or figures.replies < figures.queries
-    return 1 if bad else 0
 def cmd_fleet(args: argparse.Namespace) -> int:
     from companion.fleet import Fleet, FleetError, FleetNameError, make_fleet
 
@@ -295,30 +226,6 @@ def make_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check-config", help="validate a configuration file")
     p.add_argument("config")
     p.set_defaults(func=cmd_check)
-    p = sub.add_parser("demo", help="simulated flight through a forest (no PX4 needed)")
-    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--seed", type=int, default=3, help="world and noise seed (default 3)")
-    p.add_argument("--speed", type=float, default=2.0, help="speed limit, m/s (default 2)")
-    p.add_argument("-v", "--verbose", action="store_true", help="log the service's events")
-    p.add_argument("--px4", metavar="BUILD_DIR", help="fly real PX4 SITL (the SIH quadrotor "
-                   "of this PX4 build, e.g. PX4-Autopilot/build/px4_sitl_default) instead of "
-                   "the sitl vehicle")
-    p.set_defaults(func=cmd_demo)
-    p = sub.add_parser("bench-stream", help="setpoint jitter while re-times run back to back")
-    p.add_argument("--out", default=None, help="also write stream.json here")
-    p.add_argument("--seconds", type=float, default=5.0,
-                   help="how long to re-time back to back (default 5; the baseline is as long)")
-    p.set_defaults(func=cmd_bench_stream)
-    p = sub.add_parser("soak", help="fly N minutes with replans at 10 Hz; memory, errors, gaps")
-    p.add_argument("--minutes", type=float, default=30.0, help="how long (default 30)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    p.add_argument("--out", default=None, help="also write the figures as JSON here")
-    p.set_defaults(func=cmd_soak)
-    p = sub.add_parser("fuzz", help="hostile messages on every input while flying")
-    p.add_argument("--examples", type=int, default=2000,
-                   help="generated messages (default 2000), plus four oversized ones")
-    p.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
-    p.set_defaults(func=cmd_fuzz)
     p = sub.add_parser("fleet", help="certificates and Zenoh configs of a fleet (mutual TLS, "
                        "access control)")
     p.add_argument("dir", help="where to make (or extend) the fleet")
@@ -337,8 +244,6 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
-    if args.command == "demo":  # first contact: a word before the imports (seconds)
-        print("demo: starting: loading the flight software ...", flush=True)
     from companion.config import ConfigError
 
     try:
@@ -352,10 +257,6 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
         return 2
-    except ModuleNotFoundError as exc:  # fuzz needs the dev extra (hypothesis)
-        print(f"rota-companion {args.command}: needs {exc.name}, which is not installed "
-              "(pip install 'rota-companion[dev]')", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"rota-companion {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -4,7 +4,7 @@ Writing the record costs Python work that holds the GIL in long single calls:
 JSON encoding, Foxglove's scene for every re-timed plan (a ``json.loads`` of the
 whole result, one C call), MCAP chunk compression. In the service's own process
 that work made the setpoint stream wait for the GIL for up to 110 ms on a busy
-2-core machine (measured with ``py-spy --gil`` on ``rota-companion soak``: the
+2-core machine (measured with ``py-spy --gil`` on ``rota-sitl soak``: the
 record's writer thread held the GIL in 49 % of the samples, the stream in 16 %).
 
 So the service holds a :class:`RecordProcess`: ``put`` and ``show`` only append

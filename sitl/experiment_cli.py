@@ -1,6 +1,8 @@
-"""rota-sitl: simulation experiments on the sitl stack.
+"""rota-sitl: simulation experiments on the sitl stack, and the simulated flights
+(demo, bench-stream, soak, fuzz: sitl/flights_cli.py).
 
 Examples:
+  rota-sitl demo                                                 # a flight through a forest
   rota-sitl experiment collision-rate                            # the full grid, 500 trials/cell
   rota-sitl experiment collision-rate --trials 4 --out /tmp/t1   # a quick check
   rota-sitl experiment memory-dose --seed 1 --trials 300         # the memory time's rule
@@ -21,6 +23,8 @@ from rota.chance import DEFAULT_MEMORY_S
 from sitl.estimation import DRIFT, KINDS, EstimationErrorParams
 from sitl.experiment import VEHICLES, ExperimentConfig, run_experiment
 from sitl.experiment_report import write_dose, write_outputs
+from sitl.flights_cli import FLIGHTS, add_flight_commands
+from sitl.flights_cli import main as flights_main
 
 #: The memory times of the dose-response (s).
 DOSE_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
@@ -75,7 +79,8 @@ def _common(p: argparse.ArgumentParser, d: ExperimentConfig) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     doc = (__doc__ or "").split("\n\n")
-    ap = argparse.ArgumentParser(prog="rota-sitl", description="Simulation experiments.",
+    ap = argparse.ArgumentParser(prog="rota-sitl", description="Simulation experiments "
+                                 "and flights.",
                                  epilog="\n\n".join(doc[1:]).strip(),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     try:
@@ -84,6 +89,7 @@ def _parser() -> argparse.ArgumentParser:
         ver = "unknown"
     ap.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     sub = ap.add_subparsers(dest="group", required=True)
+    add_flight_commands(sub)  # (run by sitl.flights_cli: the entry sends them there)
     exp = sub.add_parser("experiment", help="run an experiment")
     which = exp.add_subparsers(dest="name", required=True)
     d = ExperimentConfig()
@@ -115,6 +121,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``rota-sitl``; returns the exit status (0 also when the hypothesis
     fails: the run itself succeeded; the table says whether it holds)."""
     args = _parser().parse_args(argv)
+    if args.group in FLIGHTS:
+        return flights_main(argv)
     try:
         return _run(args, argv)
     except (ValueError, OSError) as exc:  # InputError too: the message names the field

@@ -3,7 +3,7 @@
 proportional memory (PSS: shared pages split among the processes that map them,
 so the tree's PSS adds up to what it really takes), per process and in total.
 
-``rota-companion soak`` samples the service's tree with it (``docs/service.md``,
+``rota-sitl soak`` samples the service's tree with it (``docs/service.md``,
 "Footprint").
 """
 

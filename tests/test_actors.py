@@ -21,10 +21,10 @@ import zenoh
 
 from companion.actors import Actor, Link
 from companion.config import from_dict, to_toml
-from companion.demo import free_tcp_port
 from companion.fleet import Fleet, make_fleet
 from companion.record import read
 from companion.zenoh_log import Denials, handle
+from sitl.demo import free_tcp_port
 
 #: A denial as Zenoh 1.10.2 writes it at TRACE (colours included), with the zid,
 #: the link's subject (interface, transport, certificate) and the key.

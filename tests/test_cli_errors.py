@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from companion.demo import free_tcp_port
 from rota.cli import example_path
+from sitl.demo import free_tcp_port
 
 PY = sys.executable
 TOOLS = {"rota": "rota.cli", "rota-companion": "companion.cli", "rota-sim": "sitl.cli",
@@ -106,9 +106,9 @@ def test_rota_sim_unknown_world():
 
 @pytest.mark.parametrize("args", [("bench-stream", "--seconds", "0"), ("soak", "--minutes", "-1"),
                                   ("fuzz", "--examples", "0")])
-def test_rota_companion_bad_numbers(args):
+def test_rota_sitl_flight_bad_numbers(args):
     """Refused before any flight starts, in one line, naming the option."""
-    one_line_error(run("rota-companion", *args), 2, args[1], "must be positive")
+    one_line_error(run("rota-sitl", *args), 2, args[1], "must be positive")
 
 
 def test_rota_sitl_bad_numbers():

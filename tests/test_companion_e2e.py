@@ -20,7 +20,10 @@ import numpy as np
 import pytest
 
 from companion.config import to_toml
-from companion.demo import (
+from companion.gs import GroundStation
+from companion.plan import blend_speed
+from companion.record import read
+from sitl.demo import (
     DEMO_ALTITUDE_M,
     closest_approach,
     demo_config,
@@ -33,9 +36,6 @@ from companion.demo import (
     to_local,
     trajectory_message,
 )
-from companion.gs import GroundStation
-from companion.plan import blend_speed
-from companion.record import read
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
 from sitl.stream_checks import check_stream

@@ -1,4 +1,4 @@
-"""First contact: ``rota-companion demo`` says something within a second and at each
+"""First contact: ``rota-sitl demo`` says something within a second and at each
 phase (issue 29); the Makefile's demo installs the package alone."""
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def _bare_start() -> float:
 def test_demo_speaks_at_once_and_at_each_phase(tmp_path):
     bare = _bare_start()
     start = time.monotonic()
-    proc = subprocess.Popen(_cli("rota-companion") + ["demo", "--out", str(tmp_path)],
+    proc = subprocess.Popen(_cli("rota-sitl") + ["demo", "--out", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert proc.stderr is None and proc.stdout is not None
     first = proc.stdout.readline()  # (the "started" line of _cli goes to stderr, merged)

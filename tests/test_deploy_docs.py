@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.demo import free_tcp_port
+from sitl.demo import free_tcp_port
 from tests.test_cli_errors import _config
 
 PY = sys.executable

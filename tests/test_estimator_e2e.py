@@ -14,7 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.demo import (
+from companion.estimator import EstimatorSettings, UncertaintyEstimator
+from companion.estimator_replay import path_deviation
+from companion.service import Service
+from rota import Limits, RetimeInput, retime
+from rota.chance import UncertaintyModel
+from rota.robust import Safety
+from rota.voxelmap import VoxelMap
+from sitl.demo import (
     demo_config,
     free_tcp_port,
     map_message,
@@ -25,13 +32,6 @@ from companion.demo import (
     to_local,
     trajectory_message,
 )
-from companion.estimator import EstimatorSettings, UncertaintyEstimator
-from companion.estimator_replay import path_deviation
-from companion.service import Service
-from rota import Limits, RetimeInput, retime
-from rota.chance import UncertaintyModel
-from rota.robust import Safety
-from rota.voxelmap import VoxelMap
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import plan
 from sitl.process import SimProcess

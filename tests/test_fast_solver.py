@@ -220,9 +220,7 @@ def _compiled_by_the_service() -> dict[str, list[str]]:
 
     import rota
     from companion.config import Config
-    from companion.demo import map_message, to_local, trajectory_message
     from companion.messages import parse_map, parse_trajectory
-    from companion.proving import circle_message
     from companion.ros2.decode import (
         decode_bspline,
         decode_multidof,
@@ -233,7 +231,9 @@ def _compiled_by_the_service() -> dict[str, list[str]]:
     from rota import jit
     from rota.chance import UncertaintyModel
     from rota.robust import Safety
+    from sitl.demo import map_message, to_local, trajectory_message
     from sitl.planner import plan
+    from sitl.proving import circle_message
     from sitl.world import get_world
     from tests.test_ros2_decode import cfg as ros2_cfg
     from tests.test_ros2_decode import multidof_cdr, path_cdr

@@ -18,9 +18,9 @@ import time
 import numpy as np
 import pytest
 
-from companion.fuzz import run_fuzz
 from companion.gs import GroundStation
-from companion.proving import Flight, flood, statuses_errors, until
+from sitl.fuzz import run_fuzz
+from sitl.proving import Flight, flood, statuses_errors, until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
 
@@ -276,7 +276,7 @@ def test_a_command_flood_leaves_the_mission_flying():
 
 
 def test_fuzzed_and_oversized_messages_on_every_input(tmp_path):
-    """A reduced fuzz run (``rota-companion fuzz`` runs the full one): hypothesis-made
+    """A reduced fuzz run (``rota-sitl fuzz`` runs the full one): hypothesis-made
     hostile messages on every input, then the oversized ones that once stalled the
     stream for seconds; the service never crashes, answers every query, and the
     vehicle receives a stream without a gap over 100 ms, a jump or a fence breach."""

@@ -22,11 +22,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from companion.demo import free_tcp_port
 from companion.fleet import Fleet, FleetNameError, check_names, client_config, make_fleet
 from companion.gs.client import GroundStation, list_vehicles
 from companion.service import Service
 from companion.status import Publisher
+from sitl.demo import free_tcp_port
 
 #: How long a put or a declaration takes to reach the other sessions on loopback
 #: (measured: under 50 ms on this 2-core machine while busy; 1 s is the margin).

@@ -294,8 +294,8 @@ def test_rota_gs_foxglove_renders_a_record_and_refuses_bad_input(flight, tmp_pat
 
 
 def test_rota_gs_foxglove_without_a_service_says_so(capsys):
-    from companion.demo import free_tcp_port
     from companion.gs.cli import main
+    from sitl.demo import free_tcp_port
 
     port = free_tcp_port()  # nobody listens there
     assert main(["foxglove", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5",

@@ -25,7 +25,10 @@ from mcap.records import Schema as McapSchema
 from mcap_protobuf.decoder import DecoderFactory
 
 from companion.config import to_toml
-from companion.demo import (
+from companion.gs import GroundStation
+from companion.gs.foxglove import LiveView
+from companion.record import CHUNK_BYTES, read_raw
+from sitl.demo import (
     demo_config,
     free_tcp_port,
     plan_async,
@@ -34,9 +37,6 @@ from companion.demo import (
     to_local,
     trajectory_message,
 )
-from companion.gs import GroundStation
-from companion.gs.foxglove import LiveView
-from companion.record import CHUNK_BYTES, read_raw
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
 from sitl.stream_checks import check_stream

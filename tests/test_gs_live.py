@@ -28,7 +28,10 @@ import numpy as np
 import pytest
 
 from companion.config import to_toml
-from companion.demo import (
+from companion.gs import GroundStation
+from rota.trajectory import BSplineTrajectory
+from rota.voxelmap import VoxelMap
+from sitl.demo import (
     PLANNER_CLEARANCE_M,
     demo_config,
     free_tcp_port,
@@ -36,9 +39,6 @@ from companion.demo import (
     to_local,
     trajectory_message,
 )
-from companion.gs import GroundStation
-from rota.trajectory import BSplineTrajectory
-from rota.voxelmap import VoxelMap
 from sitl.mavsdk_util import free_udp_port
 from sitl.planner import plan
 from sitl.process import SimProcess
@@ -311,7 +311,7 @@ def _no_contact_when_the_service_stops(live, text, until, driver) -> None:  # no
 
 
 async def _hover(gs: GroundStation) -> None:
-    from companion.demo import hovering
+    from sitl.demo import hovering
 
     await hovering(gs)
 

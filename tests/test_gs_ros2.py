@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from companion.config import to_toml
-from companion.demo import demo_config, free_tcp_port
 from companion.gs import GroundStation
+from sitl.demo import demo_config, free_tcp_port
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
 from tests.test_ros2_send import bspline_fields, echo_yaml

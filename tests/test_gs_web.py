@@ -29,12 +29,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from companion.demo import free_tcp_port
 from companion.gs import GroundStation
 from companion.gs.view import NO_CONTACT_S, render_status
 from companion.gs.web import WebStation, page_url, start, stop
 from companion.gs.webauth import access_for, check_bind
 from rota.errors import InputError
+from sitl.demo import free_tcp_port
 
 VEHICLE = "v1"
 LONG_REASON = ("tracking error 1.7 m over 1.5 m: the vehicle strayed from its path, far beyond "

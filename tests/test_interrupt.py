@@ -146,7 +146,7 @@ def test_rota_retime_exits_130_at_any_moment(long_path, tmp_path):
 def test_every_cli_exits_130_while_it_starts_or_runs(tool, args):
     """Ctrl-C while a CLI is still importing, or later while it runs: one line, 130
     (or the command had already finished: then its own output, no traceback)."""
-    from companion.demo import free_tcp_port
+    from sitl.demo import free_tcp_port
 
     args = [a.format(port=free_tcp_port()) for a in args]
     for moment in (0.05, 0.1, 0.3, 0.6, 1.2, 4.0):

@@ -8,9 +8,9 @@ import pytest
 
 from companion import retimer
 from companion.config import ConfigError, from_dict
-from companion.demo import braking_model
 from companion.retimer import ReplanJob
 from rota.chance import DEFAULT_MEMORY_S
+from sitl.demo import braking_model
 from tests.test_robust import line, pillar
 
 

@@ -5,11 +5,11 @@ scenarios below (each first brings the vehicle back to "airborne, OFFBOARD, hold
 whatever the one before left, so none depends on another's order); each backend's
 scenarios go to one test worker (``xdist_group``, tests/conftest.py). What the autopilot
 did is read from what it reports on its own GCS link (modes, arming, landed state),
-clearance from the simulator's ground truth (``HIL_STATE_QUATERNION``): companion/tier.py,
+clearance from the simulator's ground truth (``HIL_STATE_QUATERNION``): sitl/tier.py,
 sitl/observer.py.
 
 Limits and why (measured spreads in docs/sitl.md, "The PX4 tier"):
-* clearance: the demo's planner keeps 1.0 m from trunks (companion/demo.py); the tier asserts
+* clearance: the demo's planner keeps 1.0 m from trunks (sitl/demo.py); the tier asserts
   no contact (true clearance > 0, the robot's radius subtracted);
 * a hold stops the vehicle within the brake (v^2 / 2a = 1.9 m at 2 m/s and 0.7 x 1.5 m/s^2)
   plus PX4's lag behind its setpoint (up to 0.5 s at 2 m/s, docs/sitl.md): 3.5 m;
@@ -27,9 +27,9 @@ import time
 import numpy as np
 import pytest
 
-from companion.proving import statuses_errors
-from companion.tier import TierFlight
+from sitl.proving import statuses_errors
 from sitl.px4 import px4_build, skip_reason
+from sitl.tier import TierFlight
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
 #: The tier flies eight scenarios on each backend, real-time PX4 among them: about four

@@ -17,7 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.demo import (
+from companion.gs.replay import load
+from companion.record import read
+from companion.ros2.encode import bspline_cdr, pointcloud_cdr
+from companion.ros2.settings import Ros2Settings
+from sitl.demo import (
     closest_approach,
     demo_config,
     free_tcp_port,
@@ -27,13 +31,9 @@ from companion.demo import (
     take_off,
     to_local,
 )
-from companion.gs.replay import load
-from companion.proving import statuses_errors
-from companion.record import read
-from companion.ros2.encode import bspline_cdr, pointcloud_cdr
-from companion.ros2.settings import Ros2Settings
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
+from sitl.proving import statuses_errors
 from sitl.world import get_world
 from tests.test_ros2_decode import BSPLINE, TS
 from tests.test_ros2_decode import bspline_cdr as raw_bspline_cdr

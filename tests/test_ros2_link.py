@@ -16,7 +16,6 @@ import pytest
 import zenoh
 
 from companion.config import from_dict
-from companion.demo import free_tcp_port
 from companion.messages import Rejected
 from companion.ros2 import decode
 from companion.ros2.layout import (
@@ -32,6 +31,7 @@ from companion.ros2.settings import Ros2Settings
 from companion.ros2.types import STRING
 from rota import BSplineTrajectory, Limits, RetimeInput, retime
 from rota.schema import TrajectoryMessage, result_to_dict
+from sitl.demo import free_tcp_port
 from tests.test_ros2_decode import BSPLINE, CPS, TS, bspline_cdr, store
 
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"

@@ -17,13 +17,13 @@ import pytest
 import zenoh
 
 from companion.config import ConfigError, from_dict, load, to_toml
-from companion.demo import free_tcp_port
 from companion.envelope import check_plausible
 from companion.fleet import Fleet, make_fleet, make_member
-from companion.proving import CIRCLE_RADIUS_M, Flight, circle_message
 from companion.reconfigure import Reconfigure
 from companion.security import check_exposure, exposure
 from companion.status import Reporter
+from sitl.demo import free_tcp_port
+from sitl.proving import CIRCLE_RADIUS_M, Flight, circle_message
 
 FILE = from_dict({"limits": {"v_max": 2.0, "a_max": [2.0, 2.0, 1.5]},
                   "safety": {"geofence_min": [-30.0, -30.0, -1.0],

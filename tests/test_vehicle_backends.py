@@ -13,7 +13,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from companion.demo import (
+from sitl.demo import (
     demo_config,
     free_tcp_port,
     hovering,

@@ -22,9 +22,9 @@ import pytest
 import zenoh
 
 from companion.config import from_dict
-from companion.demo import free_tcp_port
 from companion.fleet import Fleet, make_fleet
 from companion.security import exposure, zenoh_config, zenoh_exposure
+from sitl.demo import free_tcp_port
 
 ROOT = Path(__file__).resolve().parent.parent
 OFF = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
@@ -251,7 +251,7 @@ def test_an_insecure_service_says_so_on_every_status(tmp_path):
     """``insecure = true`` with a plain listener on every interface (no traffic
     leaves this machine: the ground station connects on loopback): the service
     starts, and every status it sends names each way in as INSECURE."""
-    from companion.proving import Flight
+    from sitl.proving import Flight
 
     path = tmp_path / "zenoh.json5"
     flight = Flight(workdir=str(tmp_path / "run"),

@@ -24,8 +24,8 @@ def _case(model: UncertaintyModel, chance: ChanceParams, pillar_x: float = 3.0):
     x = np.linspace(0.0, 6.0, 13)
     traj = SampledTrajectory(t=x / 2.0, p=np.column_stack([x, np.zeros_like(x), np.ones_like(x)]))
     z = np.arange(0.0, 2.0, RES)
-    vmap = VoxelMap.from_points(np.column_stack([np.full_like(z, pillar_x), np.full_like(z, 0.8), z]),
-                                RES)
+    pillar = np.column_stack([np.full_like(z, pillar_x), np.full_like(z, 0.8), z])
+    vmap = VoxelMap.from_points(pillar, RES)
     limits = Limits(v_max=2.0, a_max=2.0)
     result = retime(RetimeInput(trajectory=traj, limits=limits, safety=Safety(
         map=vmap, uncertainty=model, chance=chance, braking=BrakingParams())))

@@ -21,7 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from companion.demo import (
+from companion.gs import GroundStation
+from companion.gs.client import GroundStationError
+from sitl.demo import (
     clearance,
     demo_config,
     free_tcp_port,
@@ -32,18 +34,16 @@ from companion.demo import (
     to_local,
     trajectory_message,
 )
-from companion.gs import GroundStation
-from companion.gs.client import GroundStationError
-from companion.proving import ServiceProcess, until
 from sitl.mavsdk_util import free_udp_port
 from sitl.observer import Observer
 from sitl.planner import PlanningError
 from sitl.process import SimProcess
+from sitl.proving import ServiceProcess, until
 from sitl.vehicle import ned_to_enu
 from sitl.world import get_world
 
 BACKENDS = ("sitl", "px4")
-#: The demo's forest (``rota-companion demo`` flies seed 3)
+#: The demo's forest (``rota-sitl demo`` flies seed 3)
 TIER_SEED = 3
 SPEED = 2.0
 A_MAX = 1.5
@@ -171,7 +171,7 @@ class TierFlight:
         raise AssertionError("unreachable")
 
     async def _send_map(self) -> None:
-        from companion.demo import in_worker, map_payload
+        from sitl.demo import in_worker, map_payload
 
         payload = await in_worker(map_payload, self.world, self.home)
         self.gs.publish("map", payload)

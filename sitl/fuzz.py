@@ -1,4 +1,4 @@
-"""Hostile input, generated: ``rota-companion fuzz`` (and a reduced run in the
+"""Hostile input, generated: ``rota-sitl fuzz`` (and a reduced run in the
 tests) flies the proving circle while hypothesis-generated malformed and
 hostile messages arrive on every input (trajectory, map, commands, config,
 estimator), plus the oversized messages that once stalled the stream. Then it
@@ -24,7 +24,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion.proving import Flight, circle_message
+from sitl.proving import Flight, circle_message
 
 SAFE_COMMANDS = ("arm", "disarm", "takeoff", "start")
 #: Messages per second sent by the fuzzer (under the service's rate limits, so

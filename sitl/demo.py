@@ -1,4 +1,4 @@
-"""``rota-companion demo``: a simulated flight through a forest, end to end.
+"""``rota-sitl demo``: a simulated flight through a forest, end to end.
 
 The ``sitl`` vehicle runs in its own process and speaks MAVLink on loopback UDP;
 the flight service runs as it would on the drone (MAVSDK, Zenoh on loopback);

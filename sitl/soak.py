@@ -1,4 +1,4 @@
-"""``rota-companion soak --minutes N``: the service flies the proving circle for
+"""``rota-sitl soak --minutes N``: the service flies the proving circle for
 N minutes while a planner replans at 10 Hz (every replan re-timed and flown),
 and reports what a long flight does to it: memory (the service process after a
 warm-up minute, then at the end), errors, replans flown, and the setpoint
@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from companion.proving import Flight, statuses_errors
 from sitl.footprint import Meter, Usage
+from sitl.proving import Flight, statuses_errors
 
 REPLAN_HZ = 10.0
 WARM_UP_S = 60.0

@@ -1,7 +1,7 @@
-"""``rota-companion bench-stream``: setpoint-stream jitter at 50 Hz while
+"""``rota-sitl bench-stream``: setpoint-stream jitter at 50 Hz while
 re-times run back to back.
 
-The service runs as deployed, in its own process (:class:`companion.proving.Flight`:
+The service runs as deployed, in its own process (:class:`sitl.proving.Flight`:
 the `sitl` vehicle in another, a ground station on Zenoh in this one), so nothing
 the benchmark does shares the service's event loop. The vehicle takes off and the
 service holds in offboard; we measure the setpoint stream for a while with nothing
@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from companion.demo import start_holding, take_off
-from companion.proving import Flight
 from rota.bench import load_data
 from rota.schema import TrajectoryMessage, trajectory_to_dict
 from rota.trajectory import BSplineTrajectory
 from rota.voxelmap import VoxelMap
+from sitl.demo import start_holding, take_off
+from sitl.proving import Flight
 
 
 def _jitter_p99_ms(times: np.ndarray, period: float) -> float:

@@ -3,8 +3,8 @@ the ``sitl`` vehicle with the service running as systemd runs it (its own
 process, so it can be stopped, killed and measured), a ground station on Zenoh,
 and the vehicle's own record of every setpoint it received.
 
-Used by the fault-injection and fuzz tests and by ``rota-companion soak`` and
-``rota-companion fuzz``. Everything stays on 127.0.0.1.
+Used by the fault-injection and fuzz tests and by ``rota-sitl soak`` and
+``rota-sitl fuzz``. Everything stays on 127.0.0.1.
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from companion.config import Config, to_toml
-from companion.demo import demo_config, free_tcp_port, map_message, start_holding
 from companion.gs import GroundStation
 from companion.plan import blend_speed
+from sitl.demo import demo_config, free_tcp_port, map_message, start_holding
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
 from sitl.stream_checks import StreamFigures, check_stream
