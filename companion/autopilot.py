@@ -32,7 +32,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
-from mavsdk.plugins.mavlink_direct import MavlinkMessage
+from mavsdk.plugins.mavlink_direct import MavlinkDirectResult, MavlinkMessage
 from numpy.typing import NDArray
 
 from companion.frames import enu_to_ned, ned_to_enu
@@ -62,6 +62,7 @@ _MAV_CMD_DO_SET_MODE = 176
 _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 _PX4_MAIN_MODE_OFFBOARD = 6
 _MAV_FRAME_LOCAL_NED = 1
+_DIRECT_SUCCESS = MavlinkDirectResult.SUCCESS.value
 _TYPE_MASK_PVA_YAW = 2048  # position, velocity, acceleration and yaw used; yaw rate ignored
 _MAV_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupported",
                 4: "failed", 5: "in progress", 6: "cancelled"}
@@ -308,9 +309,18 @@ class Autopilot:
                   "yaw": math.radians(yaw_ned_deg), "yaw_rate": 0.0}
         message = MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, *self._target,
                                  json.dumps(fields))
+        # Everything is built before the deadline is checked, so that only the C call
+        # (MAVSDK packs and sends the datagram in it) lies between the check and the
+        # send: a freeze landing after the check is the one thing that can still let a
+        # setpoint out late (PX4 then re-enters OFFBOARD until its timeout again).
+        plugin = self._direct._plugin
+        handle, c_message = plugin._require_handle(), message.to_c_struct()
         if time.monotonic() > not_after:
             return False
-        self._direct._plugin.send_message(message)
+        code = plugin._lib.mavsdk_mavlink_direct_send_message(handle, c_message)
+        if code != _DIRECT_SUCCESS:
+            raise AutopilotError(f"setpoint not sent: MAVSDK answered "
+                                 f"{MavlinkDirectResult(code).name}")
         return True
 
 

@@ -24,6 +24,9 @@ log = logging.getLogger("rota.companion")
 
 #: A payload at least this large leaves memory to give back (:mod:`companion.memory`).
 LARGE_BYTES = 1_000_000
+#: How long (s) a new decode worker may take to start (its imports): generous, a busy
+#: 2-core machine took over 5 s; a decode's own budget starts after it.
+WARM_UP_S = 60.0
 #: Values a query (command, config, estimator) may hold.
 MAX_QUERY_ITEMS = 1000
 
@@ -65,21 +68,40 @@ def _run(fn: DecodeFn, what: str, payload: bytes, cfg: Config, now: float) -> An
 
 class Decoder:
     """Decodes payloads in worker processes (two: a large map does not hold up a
-    trajectory)."""
+    trajectory).
+
+    A decode's budget (``inputs.decode_timeout_s``) is for decoding only: a worker
+    process that is new (at start, or after one died) is warmed first, its imports
+    timed by :data:`WARM_UP_S`. Timed by the decode budget, a fresh worker still
+    importing on a busy machine was killed as "too slow", and its successor too, and
+    the service refused trajectories until one imported within 5 s.
+    """
 
     def __init__(self, cfg: Callable[[], Config]) -> None:
         self._cfg = cfg
         self.worker = Worker("decode", workers=2)
-        self.ready = False
+        self.ready = False  # warmed once: the service is past its start
+        self._warming = asyncio.Lock()
 
     async def start(self) -> None:
         """Spawn every worker now (imports take a second, many on a busy machine),
         not within a message's decode budget: one call each, at once."""
-        cfg = self._cfg()
-        await asyncio.gather(*(
-            self.worker.call(60.0, _run, decode_query, "warm-up", b"{}", cfg, time.time())
-            for _ in range(self.worker.workers)))
+        async with self._warming:
+            cfg = self._cfg()
+            await asyncio.gather(*(
+                self.worker.call(WARM_UP_S, _run, decode_query, "warm-up", b"{}", cfg,
+                                 time.time())
+                for _ in range(self.worker.workers)))
         self.ready = True
+
+    async def _warm(self) -> None:
+        """Warm the workers if they are new (another task may be warming them: wait)."""
+        if self.worker.cold or self._warming.locked():
+            if self._warming.locked():
+                async with self._warming:
+                    pass
+            if self.worker.cold:
+                await self.start()
 
     async def decode(self, what: str, payload: bytes, fn: DecodeFn | None = None) -> Any:
         """``payload`` decoded by ``fn`` (default: the decoder named ``what``)."""
@@ -91,6 +113,10 @@ class Decoder:
         cfg = self._cfg()
         fn = fn or DECODERS[what]
         for attempt in (1, 2):
+            try:
+                await self._warm()
+            except (TimeoutError, WorkerDied) as exc:
+                raise msgs.Rejected(f"{what}: no decode worker came up ({exc})") from None
             try:
                 return await self.worker.call(cfg.inputs.decode_timeout_s, _run, fn, what,
                                               payload, cfg, time.time())

@@ -148,6 +148,12 @@ class Worker:
                 return describe_exit(proc.exitcode)
         return None  # (a broken pool whose process shows no exit status yet: next look)
 
+    @property
+    def cold(self) -> bool:
+        """No process yet (never started, or restarted): the next call spawns one and
+        waits for its imports."""
+        return self._pool is None
+
     def restart(self) -> None:
         """Kill the process(es); the next call spawns fresh ones."""
         pool = self._pool
