@@ -19,9 +19,10 @@ import os
 import re
 import signal
 import sys
+from collections.abc import Callable, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # imported where used: the CLI starts (and the demo speaks) sooner
     from companion.config import Config
@@ -242,24 +243,30 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(prog: str, fn: Callable[[], int],
+             extra: Sequence[tuple[type[BaseException], int, Callable[[Any], str]]] = (),
+             ) -> int:
+    """``fn()``'s exit status, or one line for a failure it raised: ``extra``
+    (exception type, exit status, its words) first, then RunError (1), UsageError (2)
+    and Ctrl-C (130)."""
+    handlers = [*extra, (RunError, 1, str), (UsageError, 2, str)]
+    try:
+        return int(fn())
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except tuple(t for t, _, _ in handlers) as exc:
+        code, say = next((c, w) for t, c, w in handlers if isinstance(exc, t))
+        print(f"{prog}: {say(exc)}", file=sys.stderr)
+        return code
+
+
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
     from companion.config import ConfigError
 
-    try:
-        return int(args.func(args))
-    except ConfigError as exc:
-        print(f"rota-companion: configuration error: {exc}", file=sys.stderr)
-        return 2
-    except RunError as exc:
-        print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
-        return 1
-    except UsageError as exc:
-        print(f"rota-companion {args.command}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"rota-companion {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return one_line(f"rota-companion {args.command}", lambda: args.func(args),
+                    [(ConfigError, 2, lambda exc: f"configuration error: {exc}")])
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from companion.config import Config, from_dict
+from companion.frames import ned_to_enu
 from companion.gs import GroundStation, replay
 from companion.service import Service
 from rota.schema import TrajectoryMessage, trajectory_to_dict
@@ -332,11 +333,13 @@ def _demo(out_dir: str, seed: int, speed: float, replans: int,
         result = asyncio.run(_run(cfg, world, home, speed, replans, land=True))
     say("landed: writing the summary and the plot")
     flight = replay.load(result["record"])
-    report = sim.report if sim is not None else None
-    if report is not None:
+    if isinstance(sim, SimProcess):
+        report = sim.report
         closest, collisions = closest_approach(world, report), len(report.collisions)
-    else:  # PX4: its own estimate is all there is
-        closest = clearance(world, flight.position + home)
+    else:  # PX4: SIH's ground truth (HIL_STATE_QUATERNION on its GCS link), not its estimate
+        truth = sim.truth()
+        closest = clearance(world, ned_to_enu(truth) + home if len(truth)
+                            else flight.position + home)
         collisions = int(closest < 0)
     figures = replay.stats(flight)
     zones = sum(len(r.get("braking_zones", [])) for r in result["retimed"])
@@ -398,15 +401,17 @@ def braking_model(status: dict[str, Any], cfg: Config) -> dict[str, Any]:
 
 @contextlib.contextmanager
 def _vehicle(px4_build: str | None, world: World, seed: int):  # noqa: ANN202
-    """(MAVLink port, home in world ENU, the SimProcess or None) of the demo's vehicle."""
+    """(MAVLink port, home in world ENU, the SimProcess or, for PX4, an observer of its
+    GCS link that reads SIH's ground truth) of the demo's vehicle."""
     if px4_build is None:
         port = free_udp_port()
         with SimProcess(port=port, world="forest", seed=seed) as sim:
             yield port, sim.home_enu, sim
         return
+    from sitl.observer import Observer
     from sitl.px4 import Px4Sitl
 
     # PX4's SIH starts at its local origin: put that at the world's start
     home = np.array([world.start[0], world.start[1], 0.0])
-    with Px4Sitl(Path(px4_build)) as px4:
-        yield px4.port, home, None
+    with Px4Sitl(Path(px4_build)) as px4, Observer.px4(px4.instance) as observer:
+        yield px4.port, home, observer

@@ -4,7 +4,8 @@
 simulated vehicle, or real PX4 SITL with ``--px4``; ``bench-stream`` measures the
 setpoint stream's jitter while re-times run back to back; ``soak`` flies N minutes with
 replans at 10 Hz (memory, errors, gaps, footprint); ``fuzz`` sends hostile and
-oversized messages on every input while flying. They live here, not in
+oversized messages on every input while flying; ``parity`` flies the demo N times on
+each backend and tabulates the spread. They live here, not in
 ``rota-companion``: the flight service never imports the simulator.
 
 Exit status: 0 success; 1 a failure at run time (the demo did not reach its goal, a
@@ -19,7 +20,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from companion.cli import RunError, UsageError, _positive, setup_logging
+from companion.cli import RunError, _positive, one_line, setup_logging
 from sitl.entry import FLIGHTS  # noqa: F401 - the commands of this module (rota-sitl's entry)
 
 
@@ -92,6 +93,15 @@ def cmd_fuzz(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
+def cmd_parity(args: argparse.Namespace) -> int:
+    from sitl.parity import run_parity
+
+    _positive(args, "runs")
+    setup_logging("WARNING")
+    print(run_parity(args.runs, args.px4, args.out))
+    return 0
+
+
 def add_flight_commands(sub: argparse._SubParsersAction) -> None:
     """The flight commands, on ``rota-sitl``'s sub-command parser."""
     p = sub.add_parser("demo", help="simulated flight through a forest (no PX4 needed)")
@@ -118,6 +128,12 @@ def add_flight_commands(sub: argparse._SubParsersAction) -> None:
                    help="generated messages (default 2000), plus four oversized ones")
     p.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
     p.set_defaults(func=cmd_fuzz)
+    p = sub.add_parser("parity", help="the demo flight N times on the sitl vehicle and on PX4 "
+                       "SITL, side by side (docs/sitl.md)")
+    p.add_argument("--runs", type=int, default=10, help="flights per backend (default 10)")
+    p.add_argument("--px4", metavar="BUILD_DIR", help="also fly real PX4 SITL of this build")
+    p.add_argument("--out", default=None, help="write the Markdown table here (and JSON beside)")
+    p.set_defaults(func=cmd_parity)
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -132,21 +148,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
     if args.group == "demo":  # first contact: a word before the imports (seconds)
         print("demo: starting: loading the flight software ...", flush=True)
-    try:
-        return int(args.func(args))
-    except RunError as exc:
-        print(f"rota-sitl {args.group}: {exc}", file=sys.stderr)
-        return 1
-    except UsageError as exc:
-        print(f"rota-sitl {args.group}: {exc}", file=sys.stderr)
-        return 2
-    except ModuleNotFoundError as exc:  # fuzz needs the dev extra (hypothesis)
-        print(f"rota-sitl {args.group}: needs {exc.name}, which is not installed "
-              "(pip install 'rota-companion[dev]')", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"rota-sitl {args.group}: interrupted", file=sys.stderr)
-        return 130
+    # (fuzz needs the dev extra: hypothesis)
+    return one_line(f"rota-sitl {args.group}", lambda: args.func(args), [
+        (ModuleNotFoundError, 1, lambda exc: f"needs {exc.name}, which is not installed "
+         "(pip install 'rota-companion[dev]')")])
 
 
 if __name__ == "__main__":
