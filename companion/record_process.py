@@ -29,6 +29,7 @@ import signal
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -51,8 +52,12 @@ class RecordProcess:
     ``show``, ``start``, ``close`` and ``stats``, with the writing done in a child
     process."""
 
-    def __init__(self, settings: RecordSettings, state_dir: str, name: str) -> None:
+    def __init__(self, settings: RecordSettings, state_dir: str, name: str,
+                 on_error: Callable[[str], None] | None = None) -> None:
         self._args = (settings, state_dir, name)
+        #: called (from a thread of this class) with every error of the record, in words:
+        #: the service puts them on its status channel
+        self.on_error = on_error or (lambda message: log.error("%s", message))
         self.foxglove = settings.foxglove
         self._cap = settings.queue
         self._q: deque[tuple[str, Any, float, bool]] = deque()
@@ -131,8 +136,11 @@ class RecordProcess:
                 break
             if kind == "log":
                 level, name, message = rest
-                logging.getLogger(name if name.startswith(log.name) else log.name).log(
-                    level, "%s", message)
+                if level >= logging.ERROR:  # (a full disk: the record stops, the flight not)
+                    self.on_error(f"flight record: {message}")
+                else:
+                    logging.getLogger(name if name.startswith(log.name) else log.name).log(
+                        level, "%s", message)
             elif kind == "file":
                 self.files.append(Path(rest[0]))
             elif kind == "stats":
@@ -140,7 +148,7 @@ class RecordProcess:
         if not self._closing:
             self._proc.join(1.0)
             self.error = f"the record's writer process ended ({describe_exit(self._proc.exitcode)})"
-            log.error("flight record stopped: %s; the flight goes on unrecorded", self.error)
+            self.on_error(f"flight record stopped: {self.error}; the flight goes on unrecorded")
 
     def close(self) -> None:
         """Hand over what is queued, let the child finish the file, and wait for it."""
@@ -153,12 +161,10 @@ class RecordProcess:
             log.error("flight record: the writer process did not finish in 15 s; killed")
             self._proc.kill()
         self._threads[1].join(2)
-        dropped = self.dropped + int(self._child.get("dropped", 0))
         if self.dropped:
             log.warning("flight record: %d messages dropped before the writer process",
                         self.dropped)
         self._proc = None
-        self._child["dropped"] = dropped
 
     def stats(self) -> dict[str, Any]:
         child = self._child
@@ -237,8 +243,8 @@ def _child(recv: Any, back: Any, settings: RecordSettings, state_dir: str, name:
 
 
 def recorder_for(settings: RecordSettings, state_dir: str, name: str,
-                 ) -> RecordProcess | NoRecorder:
+                 on_error: Callable[[str], None] | None = None) -> RecordProcess | NoRecorder:
     """The service's recorder from its ``[record]`` settings."""
     if not settings.enabled:
         return NoRecorder()
-    return RecordProcess(settings, state_dir, name)
+    return RecordProcess(settings, state_dir, name, on_error)

@@ -83,7 +83,8 @@ class Service:
         self.uncertainty = (uncertainty or self.estimator
                             or ConfiguredUncertainty(cfg.uncertainty_model()))
         self.report = Reporter()
-        self.recorder = recorder_for(cfg.record, cfg.service.state_dir, cfg.service.vehicle_id)
+        self.recorder = recorder_for(cfg.record, cfg.service.state_dir, cfg.service.vehicle_id,
+                                     lambda message: self.report.error("record", message))
         self.autopilot = Autopilot(cfg.mavlink.url)
         self.autopilot.on_status_text = self._px4_text
         self.retimer = Retimer()
