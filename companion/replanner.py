@@ -41,8 +41,6 @@ class Replanner:
         self.report = report
         self._publish = publish
         self._said: set[tuple[str, str]] = set()  # zone reports made (once per model)
-        #: the map's voxel size (m), None without a map (set by the service)
-        self.map_resolution: float | None = None
         self.flying: Callable[[], bool] = lambda: False  # set by the commander's owner
         self.latest: msgs.Incoming | None = None  # newest accepted trajectory
         self.newest_stamp: float | None = None  # stamp of the newest accepted trajectory
@@ -113,22 +111,24 @@ class Replanner:
         """A model that makes every point of a path a braking point, or whose risk band
         around an obstacle is thinner than one voxel (it can never brake before one),
         is said on status, once per model: flown, but not silently."""
-        if job.uncertainty is None or self.map_resolution is None:
+        vmap = self.retimer.map
+        if vmap is None:
             return
         u, c = job.uncertainty, job.chance
-        values = (f"m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} m, Delta={c.delta:g} "
-                  f"({origin(self._uncertainty().describe())})")
+        model = (f"m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} m, memory "
+                 f"{u.memory_s:g} s, Delta={c.delta:g}")
+        values = f"{model} ({origin(self._uncertainty().describe())})"
         mask = result.extras.get("braking_mask")
         if mask is not None and len(mask) > 2 and bool(np.all(mask)):
             self._say_once(f"every point of trajectory {ident!r} is a braking point with the "
                            f"model {values}: it flies at the chance-constrained limit all the "
                            f"way; check the model, Delta and the planner's clearance",
-                           ("all", values))
+                           ("all", model))
         band = risk_reach(u, c) - max(c.semi_axes)
-        if band < self.map_resolution:
+        if band < vmap.resolution:
             self._say_once(f"the model {values} puts the risk band {band:.3f} m around an "
-                           f"obstacle, under one voxel ({self.map_resolution:g} m): no braking "
-                           f"zone can come before the path meets an obstacle", ("none", values))
+                           f"obstacle, under one voxel ({vmap.resolution:g} m): no braking "
+                           f"zone can come before the path meets an obstacle", ("none", model))
 
     def _say_once(self, message: str, key: tuple[str, str]) -> None:
         if key not in self._said and len(self._said) < 100:

@@ -127,6 +127,11 @@ class Retimer:
         self._warm: object = None  # the process pool that was warmed
         self._warming = asyncio.Lock()
 
+    @property
+    def map(self) -> VoxelMap | None:
+        """The map jobs are re-timed against (None: no map yet)."""
+        return self._map
+
     def _give_map(self, pool) -> None:  # noqa: ANN001 - a fresh process gets the current map
         if self._map is not None:
             pool.submit(_set_map, self._map)

@@ -331,7 +331,6 @@ class Service:
     async def _use_map(self, vmap: VoxelMap) -> None:
         await self.retimer.set_map(vmap)
         self.map = vmap
-        self.replanner.map_resolution = vmap.resolution
         self.recorder.show("map", vmap)  # the map in use, drawn for Foxglove
         log.info("map: %d occupied voxels at %.2f m", len(vmap), vmap.resolution)
 

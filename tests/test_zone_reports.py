@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from companion.replanner import Replanner
-from companion.retimer import ReplanJob
+from companion.retimer import ReplanJob, Retimer
 from companion.status import Reporter
 from companion.uncertainty import ConfiguredUncertainty, origin
 from rota import Limits, RetimeInput, SampledTrajectory, retime
@@ -32,9 +32,10 @@ def _case(model: UncertaintyModel, chance: ChanceParams, pillar_x: float = 3.0):
     job = ReplanJob(id="p", stamp=0.0, trajectory=traj, limits=limits, smoothness=0.0,
                     dtau=0.05, uncertainty=model, chance=chance, braking=BrakingParams())
     report = Reporter()
-    rp = Replanner(lambda: None, None, None, lambda: ConfiguredUncertainty(model), report,
+    retimer = Retimer()  # (its worker is never started here: only the map is read)
+    retimer._map = vmap
+    rp = Replanner(lambda: None, retimer, None, lambda: ConfiguredUncertainty(model), report,
                    lambda *a: None)
-    rp.map_resolution = RES
     return rp, result, job, report
 
 
