@@ -61,10 +61,17 @@ def cmd_soak(args: argparse.Namespace) -> int:
         print(f"reaction, trajectory arrival to its first setpoint ({r['count']} replans): "
               f"p50 {r['p50']} ms, p99 {r['p99']} ms, max {r['max']} ms; parts p50 (p99): "
               + ", ".join(f"{k} {v} ({r['parts_p99'][k]})" for k, v in r["parts_p50"].items()))
+    floor = figures.floor
     for what, usage in (("replanning at 10 Hz", figures.replanning),
                         ("holding, no replans", figures.holding)):
         if usage is not None:
             print(f"footprint of the service's process tree, {what}:\n{usage.table()}")
+            if floor is not None and floor.cpu > 0:
+                print(f"  = {usage.cpu / floor.cpu:.1f}x the floor's CPU and "
+                      f"{usage.pss_mb / floor.pss_mb:.1f}x its PSS")
+    if floor is not None:
+        print(f"the floor (sitl/floor.py: the service's autopilot layer alone, 50 Hz "
+              f"setpoints, same run):\n{floor.table()}")
     if args.out:
         from dataclasses import asdict
 

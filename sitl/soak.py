@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from sitl.floor import measure_floor
 from sitl.footprint import Meter, Usage
 from sitl.proving import Flight, statuses_errors
 
@@ -37,6 +38,7 @@ class SoakFigures:
     collisions: int = 0
     replanning: Usage | None = None  #: the service's tree while replanning (after warm-up)
     holding: Usage | None = None  #: the same, holding with no replans
+    floor: Usage | None = None  #: the floor (sitl.floor): 50 Hz setpoints and nothing else
     reaction_ms: dict[str, Any] | None = None  #: the service's reaction times (status)
 
     @property
@@ -101,6 +103,7 @@ def run_soak(minutes: float, speed: float = 2.0, seed: int = 0) -> SoakFigures:
 
     with flight:
         window = asyncio.run(soak())
+    figures.floor = measure_floor(HOLD_S)  # (after the flight: not beside it)
     report = flight.sim.report
     stream = flight.figures(window, report.setpoints)
     figures.stream = asdict(stream) | {"summary": stream.summary()}
