@@ -63,7 +63,7 @@ class ReplanOutcome:
 
 
 _MAP: VoxelMap | None = None  # the worker's current map
-#: Compiling every kernel with an empty cache takes 20-35 s on a 2-core machine
+#: Compiling every kernel with an empty cache takes 52-57 s on a quiet 2-core machine
 #: (docs/benchmarks.md); with a warm cache, under a second.
 WARM_UP_TIMEOUT_S = 300.0
 

@@ -38,7 +38,7 @@ from sitl.world import World, get_world
 
 log = logging.getLogger("rota.demo")
 #: How long the demo waits for the service to be ready: a first run compiles the solver
-#: (28-36 s on a 2-core x86 machine, minutes on a slow board or a busy machine).
+#: (52-57 s on a quiet 2-core x86 machine, 2026-11-27; minutes on a slow board or a busy one).
 READY_S = 600.0
 #: When the demo began (run_demo sets it): its progress lines say the time since.
 _PROGRESS: dict[str, float | None] = {"t0": None}
@@ -114,7 +114,7 @@ async def take_off(gs: GroundStation, world: World | None = None,
     """Wait for a healthy vehicle, publish the world's map, arm, take off and wait
     until the vehicle hovers; every step waits for the state to confirm it."""
     say("flight service starting: compiling or loading the solver (a first run compiles "
-        "for about 30 s; later runs load it in a second)")
+        "for about a minute; later runs load it in a second)")
     tick = asyncio.create_task(_ticking("still starting"))
     try:
         await gs.wait_for(lambda s: s["state"] == "ready", ready_s, "the vehicle to be ready")
