@@ -79,6 +79,12 @@ STREAM_NICE_STEP = 5
 #: A tick this late (s) is logged with the kernel's account of why
 #: (:mod:`companion.lateness`).
 LATE_TICK_S = 0.06
+#: The kernel's counters are read every this many ticks (and at a late one): each read
+#: of a /proc file hands the GIL over and back (open, read), and under contention every
+#: hand-back waits up to the 1 ms switch interval, so reading them at every tick cost the
+#: stream milliseconds per tick. A late tick's account covers the time since the last
+#: reading (at most this many periods before it).
+CLOCK_EVERY = 10
 
 Source = Plan | Hold | Brake
 
@@ -323,6 +329,7 @@ class SetpointStream:
         deadline = time.monotonic()
         self.last_tick = time.monotonic()
         self.clock.tick()
+        ticks = 0
         while not stop.is_set():
             deadline += period
             delay = deadline - time.monotonic()
@@ -332,9 +339,12 @@ class SetpointStream:
                 time.sleep(delay)
             now = time.monotonic()
             stall, self.last_tick = now - self.last_tick, now
-            self.clock.tick()
             budget = self._cfg().stream.stall_budget_s
-            why = self.clock.explain() if stall > min(LATE_TICK_S, budget) else ""
+            late = stall > min(LATE_TICK_S, budget)
+            ticks += 1
+            if late or ticks % CLOCK_EVERY == 0:
+                self.clock.tick()
+            why = self.clock.explain() if late else ""
             if stall > LATE_TICK_S:
                 log.warning("setpoint stream late: %.0f ms since the last tick (%s)",
                             1e3 * stall, why or "no kernel figures")
