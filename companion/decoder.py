@@ -95,13 +95,11 @@ class Decoder:
         self.ready = True
 
     async def _warm(self) -> None:
-        """Warm the workers if they are new (another task may be warming them: wait)."""
-        if self.worker.cold or self._warming.locked():
-            if self._warming.locked():
-                async with self._warming:
-                    pass
-            if self.worker.cold:
-                await self.start()
+        """Warm the workers if they are new (after a warm-up under way, if one is)."""
+        async with self._warming:
+            cold = self.worker.cold
+        if cold:
+            await self.start()
 
     async def decode(self, what: str, payload: bytes, fn: DecodeFn | None = None) -> Any:
         """``payload`` decoded by ``fn`` (default: the decoder named ``what``)."""

@@ -12,7 +12,7 @@ to a bounded queue, as :class:`~companion.record.Recorder`'s do; a feeder thread
 hands small pickled batches through a pipe (the write itself releases the GIL) to
 a child process that runs the :class:`~companion.record.Recorder`. What the child
 logs comes back and is logged here (logger ``rota.record``: the journal, never the
-record itself), with the files it opens and its counts.
+record itself), with its counts and the files it has written.
 
 When the service dies, the child sees the pipe close, writes what it has and
 finishes the file. When the child dies, the service flies on: the record stops,
@@ -141,10 +141,9 @@ class RecordProcess:
                 else:
                     logging.getLogger(name if name.startswith(log.name) else log.name).log(
                         level, "%s", message)
-            elif kind == "file":
-                self.files.append(Path(rest[0]))
             elif kind == "stats":
-                self._child = rest[0]
+                self._child, files = rest
+                self.files = [Path(f) for f in files]
         if not self._closing:
             self._proc.join(1.0)
             self.error = f"the record's writer process ended ({describe_exit(self._proc.exitcode)})"
@@ -213,14 +212,11 @@ def _child(recv: Any, back: Any, settings: RecordSettings, state_dir: str, name:
     # the service shows every re-timed plan as a PlanView made in the re-time worker:
     # this process draws it without loading rota (numba, scipy: 150 MB more)
     rec.drawn_apart = frozenset({"map", "retimed"})
-    opened = rec._open
-
-    def _open() -> None:
-        opened()
-        back.send(("file", str(rec.files[-1])))
-
-    rec._open = _open  # type: ignore[method-assign]
     rec.start()
+
+    def report() -> None:
+        back.send(("stats", rec.stats(), [str(p) for p in rec.files]))
+
     last = 0.0
     try:
         while True:
@@ -233,11 +229,11 @@ def _child(recv: Any, back: Any, settings: RecordSettings, state_dir: str, name:
                     (rec.show if view else rec.put)(channel, payload, stamp)
             if time.monotonic() - last >= STATS_S:
                 last = time.monotonic()
-                back.send(("stats", rec.stats()))
+                report()
     finally:
         rec.close()
         try:
-            back.send(("stats", rec.stats()))
+            report()
         except OSError:
             pass
 

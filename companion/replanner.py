@@ -117,23 +117,25 @@ class Replanner:
         u, c = job.uncertainty, job.chance
         model = (f"m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} m, memory "
                  f"{u.memory_s:g} s, Delta={c.delta:g}")
-        values = f"{model} ({origin(self._uncertainty().describe())})"
         mask = result.extras.get("braking_mask")
         if mask is not None and len(mask) > 2 and bool(np.all(mask)):
-            self._say_once(f"every point of trajectory {ident!r} is a braking point with the "
-                           f"model {values}: it flies at the chance-constrained limit all the "
-                           f"way; check the model, Delta and the planner's clearance",
-                           ("all", model))
+            self._say_once(("all", model), lambda said: (
+                f"every point of trajectory {ident!r} is a braking point with the model "
+                f"{said}: it flies at the chance-constrained limit all the way; check the "
+                "model, Delta and the planner's clearance"))
         band = risk_reach(u, c) - max(c.semi_axes)
         if band < vmap.resolution:
-            self._say_once(f"the model {values} puts the risk band {band:.3f} m around an "
-                           f"obstacle, under one voxel ({vmap.resolution:g} m): no braking "
-                           f"zone can come before the path meets an obstacle", ("none", model))
+            self._say_once(("none", model), lambda said: (
+                f"the model {said} puts the risk band {band:.3f} m around an obstacle, under "
+                f"one voxel ({vmap.resolution:g} m): no braking zone can come before the path "
+                "meets an obstacle"))
 
-    def _say_once(self, message: str, key: tuple[str, str]) -> None:
+    def _say_once(self, key: tuple[str, str], message: Callable[[str], str]) -> None:
+        """``message(the model and its origin)`` on status, once per ``key`` (the origin
+        is looked up only then)."""
         if key not in self._said and len(self._said) < 100:
             self._said.add(key)
-            self.report.warn(message)
+            self.report.warn(message(f"{key[1]} ({origin(self._uncertainty().describe())})"))
 
     async def _retime_and_stitch(self, incoming: msgs.Incoming) -> None:
         """Replan in the worker: join the trajectory onto the commanded state at the

@@ -20,10 +20,11 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
 from rota.chance import DEFAULT_MEMORY_S
+from sitl.entry import FLIGHTS
 from sitl.estimation import DRIFT, KINDS, EstimationErrorParams
 from sitl.experiment import VEHICLES, ExperimentConfig, run_experiment
 from sitl.experiment_report import write_dose, write_outputs
-from sitl.flights_cli import FLIGHTS, add_flight_commands
+from sitl.flights_cli import add_flight_commands
 from sitl.flights_cli import main as flights_main
 
 #: The memory times of the dose-response (s).

@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from companion.cli import RunError, _positive, one_line, setup_logging
-from sitl.entry import FLIGHTS  # noqa: F401 - the commands of this module (rota-sitl's entry)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -10,7 +10,6 @@ printed as a ratio to a floor measured in the same run on the same machine.
 
 from __future__ import annotations
 
-import asyncio
 import subprocess
 import sys
 import time
@@ -62,6 +61,3 @@ def measure_floor(seconds: float = 30.0, settle_s: float = 5.0) -> Usage:
             proc.kill()
             proc.wait(10)
 
-
-async def measure_floor_async(seconds: float = 30.0) -> Usage:
-    return await asyncio.get_running_loop().run_in_executor(None, measure_floor, seconds)
