@@ -6,13 +6,15 @@ PX4's offboard rules (PX4 user guide, "Offboard Mode"): setpoints must already
 stream (> 2 Hz, newer PX4 about 1 s) before the mode switch, and must keep
 streaming or PX4 runs its offboard-loss failsafe after ``COM_OF_LOSS_T``.
 
-Setpoints go out as single SET_POSITION_TARGET_LOCAL_NED messages through
-MAVSDK's MAVLink-direct plugin, not its offboard plugin: the offboard plugin
+Setpoints go out as single SET_POSITION_TARGET_LOCAL_NED messages from the
+setpoint sender process (:mod:`companion.sender`), through a loopback link of this
+MAVSDK with forwarding on; not through MAVSDK's offboard plugin: that plugin
 re-sends the last setpoint at 20 Hz from its own thread, so PX4 would not see a
 stalled service, and after a stall longer than ``COM_OF_LOSS_T`` that stale
 re-sending would take PX4 back into OFFBOARD (real PX4 returns to OFFBOARD by
 itself when setpoints resume). Here the vehicle receives exactly what the
-setpoint loop sends, nothing else.
+setpoint loop computes, nothing else. Commands (COMMAND_LONG) go through MAVSDK's
+MAVLink-direct plugin.
 """
 
 from __future__ import annotations
@@ -28,14 +30,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.enums import ForwardingOption
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
-from mavsdk.plugins.mavlink_direct import MavlinkDirectResult, MavlinkMessage
+from mavsdk.plugins.mavlink_direct import MavlinkMessage
 from numpy.typing import NDArray
 
 from companion.frames import enu_to_ned, ned_to_enu
+from companion.sender import COMPONENT_ID, Sent, SenderError, SetpointSender
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger("rota.autopilot")
@@ -61,9 +65,6 @@ def route_mavsdk_logs() -> None:
 _MAV_CMD_DO_SET_MODE = 176
 _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 _PX4_MAIN_MODE_OFFBOARD = 6
-_MAV_FRAME_LOCAL_NED = 1
-_DIRECT_SUCCESS = MavlinkDirectResult.SUCCESS.value
-_TYPE_MASK_PVA_YAW = 2048  # position, velocity, acceleration and yaw used; yaw rate ignored
 _MAV_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupported",
                 4: "failed", 5: "in progress", 6: "cancelled"}
 
@@ -113,10 +114,14 @@ class Autopilot:
         self._direct: MavlinkDirectAsync | None = None
         self._system = None
         self._target = (1, 1)  # the autopilot's MAVLink system and component id
+        self._sender: SetpointSender | None = None  # the setpoint sender process
+        self._sender_link = None  # MAVSDK's handle of the link to it
         self._tasks: list[asyncio.Task] = []
         self._boot = time.monotonic()
         #: PX4's COM_OF_LOSS_T, read at connection (None until read)
         self.offboard_loss_timeout_s: float | None = None
+        #: called with a line of text when the link to the vehicle has a fault
+        self.on_error: Callable[[str], None] = lambda text: log.error("%s", text)
         #: called with (severity name, text) for every STATUSTEXT from the autopilot
         self.on_status_text: Callable[[str, str], None] = lambda severity, text: None
 
@@ -124,9 +129,11 @@ class Autopilot:
     async def connect(self, timeout_s: float) -> None:
         """Open the MAVLink connection and wait for an autopilot."""
         route_mavsdk_logs()
-        self._mavsdk = Mavsdk(
-            Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
-        await self._mavsdk.add_any_connection(self.url)
+        config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
+        self._own_id = int(config.system_id)
+        self._mavsdk = Mavsdk(config)
+        # forwarding on: what the setpoint sender sends on its link goes on to PX4
+        await self._mavsdk.add_any_connection(self.url, ForwardingOption.ON)
         system = await self._mavsdk.first_autopilot(timeout_s)
         if system is None:
             raise AutopilotError(f"no autopilot on {self.url} within {timeout_s:.0f} s")
@@ -157,6 +164,8 @@ class Autopilot:
                            ("attitude", self._tel.subscribe_attitude_euler()),
                            ("statustext", self._tel.subscribe_status_text()))]
         self._tasks.append(asyncio.create_task(self._poll(), name="telemetry-poll"))
+        await self._start_sender()
+        self._tasks.append(asyncio.create_task(self._watch_sender(), name="setpoint-sender"))
         param = ParamAsync(system)
         try:
             self.offboard_loss_timeout_s = float(
@@ -166,6 +175,40 @@ class Autopilot:
         finally:
             with contextlib.suppress(Exception):
                 param.destroy()
+
+    async def _start_sender(self) -> None:
+        """Start the setpoint sender process and MAVSDK's forwarding link to it."""
+        sender = await asyncio.to_thread(SetpointSender.spawn, self._boot,
+                                         (self._own_id, COMPONENT_ID), self._target)
+        try:
+            link = await self._mavsdk.add_any_connection(f"udpout://127.0.0.1:{sender.port}",
+                                                         ForwardingOption.ON)
+            await asyncio.to_thread(sender.wait_ready)
+        except BaseException:
+            sender.close()
+            raise
+        old, self._sender, self._sender_link = self._sender_link, sender, link
+        if old is not None:
+            with contextlib.suppress(Exception):
+                await self._mavsdk.remove_connection(old)
+
+    async def _watch_sender(self) -> None:
+        """Restart the sender process if it ends (PX4 sees a gap of about its start-up,
+        0.2-0.5 s, within its offboard-loss timeout); every restart is reported."""
+        while True:
+            await asyncio.sleep(0.1)
+            if self._sender is None or self._sender.alive:
+                continue
+            dead = self._sender
+            self.on_error(f"{dead.exit_reason()}; restarting it")
+            dead.close(0.1)
+            try:
+                await self._start_sender()
+            except Exception as exc:  # noqa: BLE001 - tried again at the next check
+                self.on_error(f"the setpoint sender did not restart: {exc}")
+                await asyncio.sleep(1.0)
+            else:
+                self.on_error("setpoint sender restarted")
 
     async def _poll(self) -> None:
         """Once a second, read the slow-changing states directly: a subscription
@@ -242,6 +285,9 @@ class Autopilot:
             with contextlib.suppress(Exception):
                 self._mavsdk.destroy()
         self._mavsdk = self._tel = self._action = self._direct = self._system = None
+        if self._sender is not None:
+            self._sender.close()
+        self._sender = self._sender_link = None
 
     # ------------------------------------------------------------------ commands
     async def _call(self, what: str, coro) -> None:  # noqa: ANN001
@@ -291,37 +337,33 @@ class Autopilot:
                                  f"{_MAV_RESULTS.get(result, f'no acknowledgement ({result})')}")
 
     def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
-             yaw_ned_deg: float, stamp: float, not_after: float = math.inf) -> bool:
-        """One SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
-        feed-forward, yaw) for the monotonic time ``stamp`` (its ``time_boot_ms``).
-        Synchronous and quick (one UDP datagram); MAVSDK does not repeat it. Not
-        sent (False) if the monotonic clock is past ``not_after`` once the message
-        is built: a setpoint held up by a stall is never sent late."""
-        if self._direct is None:
+             yaw_ned_deg: float, at: float, not_after: float = math.inf,
+             max_silence: float = math.inf) -> bool:
+        """Hand one SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
+        feed-forward, yaw) to the sender process, to go out at the monotonic time ``at``
+        (stamped with the moment it does), and not at all after ``not_after`` nor
+        ``max_silence`` after the last setpoint that went out (:mod:`companion.sender`).
+        Quick (one pipe write). False if the sender is being restarted."""
+        if self._sender is None:
             raise AutopilotError("not connected")
         p, v, a = enu_to_ned(p_enu), enu_to_ned(v_enu), enu_to_ned(a_enu)
-        fields = {"time_boot_ms": int(round((stamp - self._boot) * 1e3)) & 0xFFFFFFFF,
-                  "target_system": self._target[0], "target_component": self._target[1],
-                  "coordinate_frame": _MAV_FRAME_LOCAL_NED, "type_mask": _TYPE_MASK_PVA_YAW,
-                  "x": float(p[0]), "y": float(p[1]), "z": float(p[2]),
-                  "vx": float(v[0]), "vy": float(v[1]), "vz": float(v[2]),
-                  "afx": float(a[0]), "afy": float(a[1]), "afz": float(a[2]),
-                  "yaw": math.radians(yaw_ned_deg), "yaw_rate": 0.0}
-        message = MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, *self._target,
-                                 json.dumps(fields))
-        # Everything is built before the deadline is checked, so that only the C call
-        # (MAVSDK packs and sends the datagram in it) lies between the check and the
-        # send: a freeze landing after the check is the one thing that can still let a
-        # setpoint out late (PX4 then re-enters OFFBOARD until its timeout again).
-        plugin = self._direct._plugin
-        handle, c_message = plugin._require_handle(), message.to_c_struct()
-        if time.monotonic() > not_after:
-            return False
-        code = plugin._lib.mavsdk_mavlink_direct_send_message(handle, c_message)
-        if code != _DIRECT_SUCCESS:
-            raise AutopilotError(f"setpoint not sent: MAVSDK answered "
-                                 f"{MavlinkDirectResult(code).name}")
+        try:
+            self._sender.put(at, not_after, max_silence,
+                             (*map(float, p), *map(float, v), *map(float, a),
+                              math.radians(yaw_ned_deg)))
+        except SenderError:
+            return False  # reported and restarted by _watch_sender
         return True
+
+    def cancel_sends(self) -> None:
+        """Drop the setpoints handed over and not yet sent (the stream stopped)."""
+        if self._sender is not None:
+            with contextlib.suppress(SenderError):
+                self._sender.cancel()
+
+    def sent(self) -> list[Sent]:
+        """What became of the setpoints handed over since the last call."""
+        return [] if self._sender is None else self._sender.reports()
 
 
 def _name(value: object) -> str:

@@ -5,12 +5,15 @@ The stream owns the commanded source (a :class:`~companion.plan.Plan`, a
 :class:`~companion.plan.Brake` or a :class:`~companion.plan.Hold`), swaps in the
 next plan at its takeover time, and records every setpoint it sends. Nothing
 here decodes, solves or waits on the network: one tick is a few array
-operations and one MAVLink send.
+operations and one pipe write.
 
 It runs in a thread of its own, not on the event loop, at a higher CPU priority
 than the rest of the service when it may (:data:`STREAM_NICE_STEP`): a tick then
 waits for no callback of the loop (a status being built, a reply, telemetry),
-only, at worst, for Python's GIL (handed over within the 1 ms switch interval).
+only, at worst, for Python's GIL. That wait no longer delays the vehicle: each
+setpoint is computed one period ahead and put on the wire at its deadline by the
+setpoint sender, a process of its own that needs no GIL of the service's
+(:mod:`companion.sender`).
 The loop and the stream share the commanded state under one lock; what the
 stream tells the loop (a halt, its beat) it hands over with
 ``call_soon_threadsafe``. The loop's own life feeds systemd's watchdog from the
@@ -149,7 +152,8 @@ class SetpointStream:
         self.yaw_ned = 0.0
         self.halted: str | None = None  # why plans may not fly until the next start
         self.on_halt: Callable[[str, bool], None] = lambda reason, ended: None
-        self.send_times: deque[float] = deque(maxlen=3000)
+        self.send_times: deque[float] = deque(maxlen=3000)  # when setpoints went out
+        self.dropped = 0  # setpoints the sender did not send (late after a stall)
         self.sent = SentLog()  # (time, position) of the setpoints sent
         self.last_sent: Command | None = None
         self.last_send_time = 0.0
@@ -192,6 +196,7 @@ class SetpointStream:
         with self.lock:
             self.streaming = False
             self.source, self.next_plan = None, None
+        self.autopilot.cancel_sends()
 
     def offer(self, plan: Plan) -> None:
         """Fly ``plan`` from its ``t0`` on (ignored while halted)."""
@@ -266,6 +271,7 @@ class SetpointStream:
             self.streaming = False
             self.source, self.next_plan = None, None
             self.halted = reason
+        self.autopilot.cancel_sends()
         self.report.error("stream", f"{reason}: setpoint stream stopped, PX4's offboard-loss "
                           "failsafe has the vehicle; a new 'start' is needed")
         self._call(self.on_halt, reason, True)
@@ -324,7 +330,10 @@ class SetpointStream:
 
     def _loop(self, stop: threading.Event, beat: Callable[[], None]) -> None:
         """Setpoints at ``rate_hz`` on absolute deadlines (no drift), while streaming;
-        ``beat()`` after every tick."""
+        ``beat()`` after every tick. Each setpoint is computed one period before its
+        deadline and handed to the sender process, which sends it at the deadline
+        (:mod:`companion.sender`): a tick of this thread may come up to a period late
+        (waiting for the GIL or a CPU) and the setpoint still goes out on time."""
         period = 1.0 / self._cfg().stream.rate_hz
         deadline = time.monotonic()
         self.last_tick = time.monotonic()
@@ -332,13 +341,14 @@ class SetpointStream:
         ticks = 0
         while not stop.is_set():
             deadline += period
-            delay = deadline - time.monotonic()
+            delay = deadline - period - time.monotonic()
             if delay < -5 * period:  # fell far behind (stalled): resynchronise
-                deadline = time.monotonic()
+                deadline = time.monotonic() + period
             if delay > 0:
                 time.sleep(delay)
-            now = time.monotonic()
-            stall, self.last_tick = now - self.last_tick, now
+            wall = time.monotonic()
+            at = max(deadline, wall)  # when this tick's setpoint goes out
+            stall, self.last_tick = wall - self.last_tick, wall
             budget = self._cfg().stream.stall_budget_s
             late = stall > min(LATE_TICK_S, budget)
             ticks += 1
@@ -348,13 +358,23 @@ class SetpointStream:
             if stall > LATE_TICK_S:
                 log.warning("setpoint stream late: %.0f ms since the last tick (%s)",
                             1e3 * stall, why or "no kernel figures")
+            self._account()
             with self.lock:
                 if self.streaming:
                     if stall > budget:
-                        self._stalled(stall, now, why)
+                        self._stalled(stall, at, why)
                     if self.streaming:
-                        self._step(now)
+                        self._step(at, wall)
             beat()
+
+    def _account(self) -> None:
+        """Take in what the sender did with the setpoints handed to it."""
+        for sent in self.autopilot.sent():
+            if sent.sent_at is not None:
+                self.send_times.append(sent.sent_at)
+            else:
+                self.dropped += 1
+                log.warning("setpoint for %.3f not sent: %s", sent.at, sent.why)
 
     def loss_timeout(self) -> float:
         """PX4's offboard-loss timeout: the smaller of the configured and PX4's own."""
@@ -394,7 +414,8 @@ class SetpointStream:
         d = position - recent
         return d[int(np.argmin(np.einsum("ij,ij->i", d, d)))]
 
-    def _step(self, now: float) -> None:
+    def _step(self, now: float, wall: float) -> None:
+        """The setpoint for ``now`` (when it is to go out), computed at ``wall``."""
         age = now - self.autopilot.telemetry.position_time
         if age > LOSS_SHARE * self.loss_timeout():
             # deaf to the vehicle for nearly PX4's offboard-loss timeout: a link that
@@ -427,19 +448,19 @@ class SetpointStream:
                 self._end(f"no safe setpoint after: {problem}")
                 return
         self._update_yaw(cmd)
-        not_after = now + self._cfg().stream.stall_budget_s
+        not_after, silence = wall + self._cfg().stream.stall_budget_s, math.inf
         if self.last_sent is not None:
-            not_after = min(not_after, self.last_send_time + self.resume_limit())
+            silence = self.resume_limit()
+            not_after = min(not_after, self.last_send_time + silence)
         try:
             # a setpoint computed before a stall is not sent after it (the next tick
             # sees the stall), nor later than PX4 is sure to be waiting for it
             sent = self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
-                                       self.yaw_ned, now, not_after)
+                                       self.yaw_ned, now, not_after, silence)
         except Exception as exc:  # noqa: BLE001 - the link monitor reports a dead link
             log.warning("setpoint send failed: %s", exc)
             return
         if sent:
-            self.send_times.append(now)
             self.sent.append(now, cmd.position)
             self.last_sent, self.last_send_time = cmd, now
             self.record("setpoint", {"t": now, "p": cmd.position, "v": cmd.velocity,

@@ -101,6 +101,12 @@ class _Autopilot:
         self.telemetry = Telemetry(position=np.zeros(3), position_time=time.monotonic())
         self.offboard_loss_timeout_s = 1.0
 
+    def cancel_sends(self) -> None:
+        pass
+
+    def sent(self) -> list:
+        return []
+
 
 def _stream(last: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> SetpointStream:
     s = SetpointStream(lambda: CFG, _Autopilot(), Reporter())
@@ -173,14 +179,14 @@ def test_no_setpoint_is_sent_later_than_px4_is_sure_to_wait_for_it():
     s = _stream([0.0, 0.0, 1.0])
     s.source = Hold(np.array([0.0, 0.0, 1.0]), "test")
     s.autopilot.telemetry.position_time = 100.5
-    s._step(100.001 + s.resume_limit())  # nothing went out since 100.0: too late to resume
+    s._step(100.001 + s.resume_limit(), 100.001 + s.resume_limit())  # nothing went out since 100.0: too late to resume
     assert not s.streaming and "no setpoint sent for" in s.halted
 
 
 def test_no_setpoint_goes_out_once_the_vehicle_is_silent():
     s = _stream([0.0, 0.0, 1.0])
     s.autopilot.telemetry.position_time = time.monotonic() - 1.0  # PX4 silent for 1 s
-    s._step(time.monotonic())
+    s._step(time.monotonic(), time.monotonic())
     assert not s.streaming and "no telemetry" in s.halted
 
 
