@@ -30,16 +30,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-from mavsdk.enums import ForwardingOption
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+from mavsdk.enums import ForwardingOption
 from mavsdk.plugins.mavlink_direct import MavlinkMessage
 from numpy.typing import NDArray
 
 from companion.frames import enu_to_ned, ned_to_enu
-from companion.sender import COMPONENT_ID, Sent, SenderError, SetpointSender
+from companion.sender import COMPONENT_ID, SenderError, Sent, SetpointSender
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger("rota.autopilot")

@@ -179,7 +179,8 @@ def test_no_setpoint_is_sent_later_than_px4_is_sure_to_wait_for_it():
     s = _stream([0.0, 0.0, 1.0])
     s.source = Hold(np.array([0.0, 0.0, 1.0]), "test")
     s.autopilot.telemetry.position_time = 100.5
-    s._step(100.001 + s.resume_limit(), 100.001 + s.resume_limit())  # nothing went out since 100.0: too late to resume
+    t = 100.001 + s.resume_limit()  # nothing went out since 100.0: too late to resume
+    s._step(t, t)
     assert not s.streaming and "no setpoint sent for" in s.halted
 
 
