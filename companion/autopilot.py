@@ -35,11 +35,18 @@ from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.enums import ForwardingOption
-from mavsdk.plugins.mavlink_direct import MavlinkMessage
+from mavsdk.plugins.mavlink_direct import MavlinkDirectResult, MavlinkMessage
 from numpy.typing import NDArray
 
 from companion.frames import enu_to_ned, ned_to_enu
-from companion.sender import COMPONENT_ID, SenderError, Sent, SetpointSender
+from companion.sender import (
+    COMPONENT_ID,
+    MAV_FRAME_LOCAL_NED,
+    TYPE_MASK_PVA_YAW,
+    SenderError,
+    Sent,
+    SetpointSender,
+)
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger("rota.autopilot")
@@ -63,6 +70,7 @@ def route_mavsdk_logs() -> None:
 
 # MAVLink constants (common.xml) and PX4's custom mode for OFFBOARD (px4_custom_mode.h)
 _MAV_CMD_DO_SET_MODE = 176
+_DIRECT_SUCCESS = MavlinkDirectResult.SUCCESS.value
 _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 _PX4_MAIN_MODE_OFFBOARD = 6
 _MAV_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupported",
@@ -116,6 +124,7 @@ class Autopilot:
         self._target = (1, 1)  # the autopilot's MAVLink system and component id
         self._sender: SetpointSender | None = None  # the setpoint sender process
         self._sender_link = None  # MAVSDK's handle of the link to it
+        self._direct_sent: list[Sent] = []  # sent from here while the sender restarted
         self._tasks: list[asyncio.Task] = []
         self._boot = time.monotonic()
         #: PX4's COM_OF_LOSS_T, read at connection (None until read)
@@ -193,14 +202,15 @@ class Autopilot:
                 await self._mavsdk.remove_connection(old)
 
     async def _watch_sender(self) -> None:
-        """Restart the sender process if it ends (PX4 sees a gap of about its start-up,
-        0.2-0.5 s, within its offboard-loss timeout); every restart is reported."""
+        """Restart the sender process if it ends (meanwhile :meth:`send` sends from the
+        stream's thread); every death is reported."""
         while True:
             await asyncio.sleep(0.1)
             if self._sender is None or self._sender.alive:
                 continue
             dead = self._sender
-            self.on_error(f"{dead.exit_reason()}; restarting it")
+            self.on_error(f"{dead.exit_reason()}; setpoints go out through MAVSDK from "
+                          "the stream's thread until it is restarted")
             dead.close(0.1)
             try:
                 await self._start_sender()
@@ -208,7 +218,7 @@ class Autopilot:
                 self.on_error(f"the setpoint sender did not restart: {exc}")
                 await asyncio.sleep(1.0)
             else:
-                self.on_error("setpoint sender restarted")
+                log.warning("setpoint sender restarted")
 
     async def _poll(self) -> None:
         """Once a second, read the slow-changing states directly: a subscription
@@ -339,20 +349,49 @@ class Autopilot:
     def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
              yaw_ned_deg: float, at: float, not_after: float = math.inf,
              max_silence: float = math.inf) -> bool:
-        """Hand one SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
-        feed-forward, yaw) to the sender process, to go out at the monotonic time ``at``
-        (stamped with the moment it does), and not at all after ``not_after`` nor
-        ``max_silence`` after the last setpoint that went out (:mod:`companion.sender`).
-        Quick (one pipe write). False if the sender is being restarted."""
-        if self._sender is None:
+        """One SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
+        feed-forward, yaw), to go out at the monotonic time ``at`` (stamped with the
+        moment it does), and not at all after ``not_after`` nor ``max_silence`` after
+        the last setpoint that went out: handed to the sender process (one pipe write,
+        :mod:`companion.sender`). While the sender is dead and being restarted, sent
+        from here through MAVSDK's MAVLink-direct plugin instead (this thread then
+        sleeps until ``at``). True if handed over or sent."""
+        if self._direct is None:
             raise AutopilotError("not connected")
         p, v, a = enu_to_ned(p_enu), enu_to_ned(v_enu), enu_to_ned(a_enu)
-        try:
-            self._sender.put(at, not_after, max_silence,
-                             (*map(float, p), *map(float, v), *map(float, a),
-                              math.radians(yaw_ned_deg)))
-        except SenderError:
-            return False  # reported and restarted by _watch_sender
+        values = (*map(float, p), *map(float, v), *map(float, a), math.radians(yaw_ned_deg))
+        if self._sender is not None:
+            try:
+                self._sender.put(at, not_after, max_silence, values)
+                return True
+            except SenderError:
+                pass  # reported and restarted by _watch_sender
+        return self._send_direct(values, at, not_after)
+
+    def _send_direct(self, values: tuple[float, ...], at: float, not_after: float) -> bool:
+        """The stand-in while the sender restarts: this thread waits for ``at`` and sends
+        through MAVSDK's MAVLink-direct plugin (not after ``not_after``)."""
+        time.sleep(max(0.0, at - time.monotonic()))
+        now = time.monotonic()
+        keys = ("x", "y", "z", "vx", "vy", "vz", "afx", "afy", "afz", "yaw")
+        fields = {"time_boot_ms": int(round((now - self._boot) * 1e3)) & 0xFFFFFFFF,
+                  "target_system": self._target[0], "target_component": self._target[1],
+                  "coordinate_frame": MAV_FRAME_LOCAL_NED, "type_mask": TYPE_MASK_PVA_YAW,
+                  **dict(zip(keys, values, strict=True)), "yaw_rate": 0.0}
+        message = MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, *self._target,
+                                 json.dumps(fields))
+        # everything is built before the deadline is checked: only the C call (MAVSDK
+        # packs and sends the datagram in it) lies between the check and the send
+        plugin = self._direct._plugin
+        handle, c_message = plugin._require_handle(), message.to_c_struct()
+        if time.monotonic() > not_after:
+            self._direct_sent.append(Sent(at, None, "computed before a stall"))
+            return False
+        code = plugin._lib.mavsdk_mavlink_direct_send_message(handle, c_message)
+        if code != _DIRECT_SUCCESS:
+            raise AutopilotError(f"setpoint not sent: MAVSDK answered "
+                                 f"{MavlinkDirectResult(code).name}")
+        self._direct_sent.append(Sent(at, now))
         return True
 
     def cancel_sends(self) -> None:
@@ -363,7 +402,8 @@ class Autopilot:
 
     def sent(self) -> list[Sent]:
         """What became of the setpoints handed over since the last call."""
-        return [] if self._sender is None else self._sender.reports()
+        direct, self._direct_sent = self._direct_sent, []
+        return direct + ([] if self._sender is None else self._sender.reports())
 
 
 def _name(value: object) -> str:

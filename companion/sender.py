@@ -72,8 +72,8 @@ WHY = {LATE: "computed before a stall and not sent after it",
 HELLO, READY = -10.0, -11.0
 #: The sender's own MAVLink component id (MAV_COMP_ID_ONBOARD_COMPUTER2): not MAVSDK's.
 COMPONENT_ID = 194
-_TYPE_MASK_PVA_YAW = 2048  # position, velocity, acceleration and yaw; yaw rate ignored
-_MAV_FRAME_LOCAL_NED = 1
+TYPE_MASK_PVA_YAW = 2048  # position, velocity, acceleration and yaw; yaw rate ignored
+MAV_FRAME_LOCAL_NED = 1
 
 
 class SenderError(RuntimeError):
@@ -153,7 +153,7 @@ class SetpointSender:
     def _write(self, data: bytes) -> None:
         try:
             os.write(self._proc.stdin.fileno(), data)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # (ValueError: the pipe closed here)
             raise SenderError(self.exit_reason() or f"the setpoint sender's pipe: {exc}") from exc
 
     def reports(self) -> list[Sent]:
@@ -243,12 +243,12 @@ def serve(boot: float, source: tuple[int, int], target: tuple[int, int]) -> None
         if now > not_after:
             report(at, LATE)
             continue
-        if now - last > max_silence:
+        if last > -math.inf and now - last > max_silence:  # (a new sender: not_after holds)
             report(at, SILENT)
             continue
         packed = mav.set_position_target_local_ned_encode(
             int(round((now - boot) * 1e3)) & 0xFFFFFFFF, target[0], target[1],
-            _MAV_FRAME_LOCAL_NED, _TYPE_MASK_PVA_YAW, *values, 0.0).pack(mav)
+            MAV_FRAME_LOCAL_NED, TYPE_MASK_PVA_YAW, *values, 0.0).pack(mav)
         if _stopped(service):
             report(at, FROZEN)
             continue

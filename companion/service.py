@@ -87,6 +87,7 @@ class Service:
                                      lambda message: self.report.error("record", message))
         self.autopilot = Autopilot(cfg.mavlink.url)
         self.autopilot.on_status_text = self._px4_text
+        self.autopilot.on_error = lambda text: self.report.error("mavlink", text)
         self.retimer = Retimer()
         self.decoder = Decoder(lambda: self.cfg)
         self.stream = SetpointStream(lambda: self.cfg, self.autopilot, self.report)

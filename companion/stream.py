@@ -154,6 +154,7 @@ class SetpointStream:
         self.on_halt: Callable[[str, bool], None] = lambda reason, ended: None
         self.send_times: deque[float] = deque(maxlen=3000)  # when setpoints went out
         self.dropped = 0  # setpoints the sender did not send (late after a stall)
+        self._unsent: dict[str, tuple[int, float]] = {}  # why: (not logged, last logged)
         self.sent = SentLog()  # (time, position) of the setpoints sent
         self.last_sent: Command | None = None
         self.last_send_time = 0.0
@@ -368,13 +369,21 @@ class SetpointStream:
             beat()
 
     def _account(self) -> None:
-        """Take in what the sender did with the setpoints handed to it."""
+        """Take in what the sender did with the setpoints handed to it (setpoints not
+        sent are logged, at most once a second for each reason, with their count)."""
+        now = time.monotonic()
         for sent in self.autopilot.sent():
             if sent.sent_at is not None:
                 self.send_times.append(sent.sent_at)
+                continue
+            self.dropped += 1
+            count, since = self._unsent.get(sent.why, (0, 0.0))
+            if now - since >= 1.0:
+                log.warning("setpoint for %.3f not sent: %s%s", sent.at, sent.why,
+                            f" ({count} more since the last such line)" if count else "")
+                self._unsent[sent.why] = (0, now)
             else:
-                self.dropped += 1
-                log.warning("setpoint for %.3f not sent: %s", sent.at, sent.why)
+                self._unsent[sent.why] = (count + 1, since)
 
     def loss_timeout(self) -> float:
         """PX4's offboard-loss timeout: the smaller of the configured and PX4's own."""

@@ -137,6 +137,53 @@ async def at_speed(f: Flight) -> float:
     return t_fly
 
 
+def sender_pid(service_pid: int) -> int | None:
+    """The setpoint sender process of the service (a child running companion.sender)."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read()
+        except OSError:
+            continue
+        if ppid == service_pid and b"companion.sender" in cmd:
+            return int(entry)
+    return None
+
+
+def test_a_killed_setpoint_sender_is_reported_and_restarted_without_a_gap():
+    """The sender process is killed mid-flight: the death is on status in words,
+    setpoints go out from the service itself until a new sender runs, and the vehicle
+    sees a stream within its budget throughout."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        await f.take_off()
+        await f.circle("c0")
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.02, 20, "speed")
+        old = sender_pid(f.service.pid)
+        t0 = time.monotonic()
+        os.kill(old, signal.SIGKILL)
+        await gs.wait_for(lambda s: any("setpoint sender process exited (code -9)"
+                                        in e["message"] for e in s.get("events", ())),
+                          5, "the report")
+        await until(lambda: sender_pid(f.service.pid) not in (None, old), 20,
+                    "a new sender")
+        new = sender_pid(f.service.pid)
+        await until(lambda: time.monotonic() > t0 + 3.0, 10, "three seconds of flight")
+        return old, new, t0, time.monotonic(), gs.status
+
+    flight = Flight()
+    (old, new, t0, t1, after), report = run(flight, scenario)
+    assert old and new and new != old
+    print(flight.log[-4000:])
+    assert after["state"] == "offboard" and not after["halted"], after
+    assert after["trajectory_id"] == "c0", after
+    assert_stream_ok(flight, report, (t0 - 1.0, t1))
+
+
 def stop_service(flight: Flight, seconds: float) -> tuple[float, float]:
     """Freeze the whole service process (SIGSTOP) for ``seconds``: the fault itself,
     so a timed wait; the pause is left out of the gap figures."""
