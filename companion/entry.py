@@ -28,16 +28,28 @@ def run(prog: str, module: str) -> int:
         seen.append(signum)
         raise KeyboardInterrupt
 
+    # Ctrl-C inside a callback the interpreter calls (importlib's module-lock weakref
+    # callback) cannot propagate: Python would print "Exception ignored in ..." and go
+    # on; ``seen`` has it, so the hook keeps quiet about it.
+    hook = sys.unraisablehook
+
+    def quiet(unraisable: object) -> None:
+        if not isinstance(getattr(unraisable, "exc_value", None), KeyboardInterrupt):
+            hook(unraisable)
+
     signal.signal(signal.SIGINT, on_sigint)
+    sys.unraisablehook = quiet
     try:
         main = import_module(module).main
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        sys.unraisablehook = hook
         if seen:  # an import swallowed it
             raise KeyboardInterrupt
         code = main()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     except BaseException as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        sys.unraisablehook = hook
         if not (seen or isinstance(exc, KeyboardInterrupt)):
             raise
         print(f"{prog}: interrupted", file=sys.stderr, flush=True)

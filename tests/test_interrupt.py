@@ -179,3 +179,22 @@ def test_rota_retime_second_ctrl_c_stops_at_once(long_path, tmp_path):
     assert time.monotonic() - start < 5.0  # not the rest of a round (tens of seconds)
     _interrupted_once(err, "rota")
     assert not out.exists()
+
+
+def test_ctrl_c_inside_a_callback_the_interpreter_calls_is_one_line(tmp_path):
+    """Ctrl-C landing in a callback Python calls itself during an import (importlib's
+    module-lock weakref callback, seen under load): Python cannot raise it there and
+    would print "Exception ignored in ..."; the shim says its one line only."""
+    (tmp_path / "slow_import.py").write_text(
+        "import os, signal, weakref\n"
+        "class A: pass\n"
+        "a = A()\n"
+        "r = weakref.ref(a, lambda _: os.kill(os.getpid(), signal.SIGINT))\n"
+        "del a  # the callback runs here, and the SIGINT is handled inside it\n"
+        "def main(): return 0\n")
+    out = subprocess.run(
+        [PY, "-c", "import sys; from companion.entry import run; "
+                   "sys.exit(run('prog', 'slow_import'))"],
+        capture_output=True, text=True, timeout=60,
+        env=dict(os.environ, PYTHONPATH=str(tmp_path)))
+    assert out.returncode == 130 and out.stderr == "prog: interrupted\n", out.stderr
