@@ -46,6 +46,7 @@ from companion.sender import (
     SenderError,
     Sent,
     SetpointSender,
+    shifted,
 )
 
 FloatArray = NDArray[np.float64]
@@ -348,11 +349,12 @@ class Autopilot:
 
     def send(self, p_enu: FloatArray, v_enu: FloatArray, a_enu: FloatArray,
              yaw_ned_deg: float, at: float, not_after: float = math.inf,
-             max_silence: float = math.inf) -> bool:
+             max_silence: float = math.inf, max_shift: float = 0.0) -> bool:
         """One SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration
         feed-forward, yaw), to go out at the monotonic time ``at`` (stamped with the
         moment it does), and not at all after ``not_after`` nor ``max_silence`` after
-        the last setpoint that went out: handed to the sender process (one pipe write,
+        the last setpoint that went out (moved on by up to ``max_shift`` if it goes out
+        late: :func:`companion.sender.shifted`): handed to the sender process (one pipe write,
         :mod:`companion.sender`). While the sender is dead and being restarted, sent
         from here through MAVSDK's MAVLink-direct plugin instead (this thread then
         sleeps until ``at``). True if handed over or sent."""
@@ -362,17 +364,19 @@ class Autopilot:
         values = (*map(float, p), *map(float, v), *map(float, a), math.radians(yaw_ned_deg))
         if self._sender is not None:
             try:
-                self._sender.put(at, not_after, max_silence, values)
+                self._sender.put(at, not_after, max_silence, max_shift, values)
                 return True
             except SenderError:
                 pass  # reported and restarted by _watch_sender
-        return self._send_direct(values, at, not_after)
+        return self._send_direct(values, at, not_after, max_shift)
 
-    def _send_direct(self, values: tuple[float, ...], at: float, not_after: float) -> bool:
+    def _send_direct(self, values: tuple[float, ...], at: float, not_after: float,
+                     max_shift: float) -> bool:
         """The stand-in while the sender restarts: this thread waits for ``at`` and sends
         through MAVSDK's MAVLink-direct plugin (not after ``not_after``)."""
         time.sleep(max(0.0, at - time.monotonic()))
         now = time.monotonic()
+        values = shifted(values, min(now - at, max_shift))
         keys = ("x", "y", "z", "vx", "vy", "vz", "afx", "afy", "afz", "yaw")
         fields = {"time_boot_ms": int(round((now - self._boot) * 1e3)) & 0xFFFFFFFF,
                   "target_system": self._target[0], "target_component": self._target[1],

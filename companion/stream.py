@@ -465,7 +465,8 @@ class SetpointStream:
             # a setpoint computed before a stall is not sent after it (the next tick
             # sees the stall), nor later than PX4 is sure to be waiting for it
             sent = self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
-                                       self.yaw_ned, now, not_after, silence)
+                                       self.yaw_ned, now, not_after, silence,
+                                       1.0 / self._cfg().stream.rate_hz)
         except Exception as exc:  # noqa: BLE001 - the link monitor reports a dead link
             log.warning("setpoint send failed: %s", exc)
             return

@@ -181,9 +181,19 @@ class Flight:
         gs = self.gs
         here = await start_holding(gs)
         self.center = here + [CIRCLE_RADIUS_M, 0.0, 0.0]
-        gs.publish("trajectory", circle_message(self.center, CIRCLE_RADIUS_M, math.pi,
-                                                self.speed, duration_s, ident))
-        await gs.wait_for(lambda s: s.get("trajectory_id") == ident, 20, "the circle to begin")
+        # sent again every 5 s, as a planner re-sends (one sent while the service's first
+        # re-time still loads on a busy machine is not lost; it may not fly fresh)
+        end = time.monotonic() + 60.0
+        while True:
+            gs.publish("trajectory", circle_message(self.center, CIRCLE_RADIUS_M, math.pi,
+                                                    self.speed, duration_s, ident))
+            try:
+                await gs.wait_for(lambda s: s.get("trajectory_id") == ident, 5,
+                                  "the circle to begin")
+                return
+            except TimeoutError:
+                if time.monotonic() > end:
+                    raise
 
     def replan(self, ident: str, duration_s: float = 20.0) -> None:
         """A new circle trajectory from the commanded position (a planner's replan)."""

@@ -126,10 +126,17 @@ def test_every_request_is_on_record_with_its_sender(tmp_path):
         assert _ask(planner, "rota/sim/cmd/arm", timeout=2.0) == []  # the ACL denies it
         # a trajectory that the service refuses (it is not valid), from the planner
         pub = planner.declare_publisher("rota/sim/trajectory")
-        pub.put(b'{"type": "rota/trajectory", "version": 1}',
-                source_info=zenoh.SourceInfo(pub.id, 1))
-        text = _wait("the refused trajectory in the log", lambda: (
-            t := log_path.read_text()) and "(from planner-sim" in t and "denied" in t and t)
+
+        def refused_in_log() -> str | None:
+            # sent again at each look, as a 10 Hz planner does: a put made before the
+            # planner's session knows the service's subscriber is lost (on a busy machine
+            # the TLS link may still be coming up)
+            pub.put(b'{"type": "rota/trajectory", "version": 1}',
+                    source_info=zenoh.SourceInfo(pub.id, 1))
+            t = log_path.read_text()
+            return t if "(from planner-sim" in t and "denied" in t else None
+
+        text = _wait("the refused trajectory in the log", refused_in_log)
     finally:  # (the service is stopped whatever happened: no orphan outlives the test)
         for session in (gs, planner):
             if session is not None:

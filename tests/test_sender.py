@@ -15,7 +15,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.sender import (
     CANCELLED,
     LATE,
+    RECORD,
     SILENT,
+    SUPERSEDED,
     WHY,
     SenderError,
     SetpointSender,
@@ -61,7 +63,7 @@ def test_a_setpoint_goes_out_at_its_deadline_stamped_when_it_went():
         mavsdk.sendto(b"\xfd", ("127.0.0.1", sender.port))
         sender.wait_ready()
         at = time.monotonic() + 0.2
-        sender.put(at, at + 1.0, math.inf, VALUES)
+        sender.put(at, at + 1.0, math.inf, 0.0, VALUES)
         arrived, msg = _receive(mavsdk, mavlink2.MAVLink(None))
         assert msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED"
         assert (msg.get_srcSystem(), msg.get_srcComponent()) == (245, 194)
@@ -81,7 +83,7 @@ def test_setpoints_go_out_in_order_each_at_its_own_deadline(link):
     sender, mavsdk, parser = link
     t0 = time.monotonic() + 0.1
     for k in range(5):
-        sender.put(t0 + 0.02 * k, t0 + 1.0, math.inf, (float(k), *VALUES[1:]))
+        sender.put(t0 + 0.02 * k, t0 + 1.0, math.inf, 0.0, (float(k), *VALUES[1:]))
     xs = [_receive(mavsdk, parser)[1].x for _ in range(5)]
     assert xs == [0.0, 1.0, 2.0, 3.0, 4.0]
     sent = [r.sent_at for r in _reports(sender, 5)]
@@ -91,15 +93,15 @@ def test_setpoints_go_out_in_order_each_at_its_own_deadline(link):
 def test_a_setpoint_past_its_not_after_or_after_too_long_a_silence_is_dropped(link):
     sender, mavsdk, parser = link
     now = time.monotonic()
-    sender.put(now - 0.1, now - 0.05, math.inf, VALUES)  # computed before a stall
+    sender.put(now - 0.1, now - 0.05, math.inf, 0.0, VALUES)  # computed before a stall
     (late,) = _reports(sender, 1)
     assert late.sent_at is None and late.why == WHY[LATE]
-    sender.put(now, now + 1.0, math.inf, VALUES)
+    sender.put(now, now + 1.0, math.inf, 0.0, VALUES)
     _receive(mavsdk, parser)
     _reports(sender, 1)
     time.sleep(0.15)  # (the silence to be refused: real time must pass)
     at = time.monotonic()
-    sender.put(at, at + 1.0, 0.1, VALUES)  # 0.15 s since the last one went out > 0.1 s
+    sender.put(at, at + 1.0, 0.1, 0.0, VALUES)  # 0.15 s since the last one went out > 0.1 s
     (silent,) = _reports(sender, 1)
     assert silent.sent_at is None and silent.why == WHY[SILENT]
     mavsdk.settimeout(0.3)
@@ -110,7 +112,7 @@ def test_a_setpoint_past_its_not_after_or_after_too_long_a_silence_is_dropped(li
 def test_cancel_drops_what_waits(link):
     sender, mavsdk, _ = link
     at = time.monotonic() + 0.5
-    sender.put(at, at + 1.0, math.inf, VALUES)
+    sender.put(at, at + 1.0, math.inf, 0.0, VALUES)
     sender.cancel()
     (report,) = _reports(sender, 1)
     assert report.sent_at is None and report.why == WHY[CANCELLED]
@@ -124,7 +126,7 @@ def test_it_ignores_sigterm_and_sigint_and_ends_when_the_service_does(link):
     for sig in (signal.SIGTERM, signal.SIGINT):
         os.kill(sender._proc.pid, sig)
     at = time.monotonic() + 0.05
-    sender.put(at, at + 1.0, math.inf, VALUES)
+    sender.put(at, at + 1.0, math.inf, 0.0, VALUES)
     _receive(mavsdk, parser)  # still sending
     sender._proc.stdin.close()  # the service's end of the pipe closes (as when it dies)
     assert sender._proc.wait(5) == 0
@@ -137,7 +139,7 @@ def test_a_dead_sender_says_so():
     assert not sender.alive and "exited (code -9)" in sender.exit_reason()
     with pytest.raises(SenderError, match="exited"):
         for _ in range(100):  # (the pipe's buffer may take some writes first)
-            sender.put(0.0, 0.0, math.inf, VALUES)
+            sender.put(0.0, 0.0, math.inf, 0.0, VALUES)
     sender.close()
 
 
@@ -154,7 +156,7 @@ def test_nothing_is_sent_while_the_service_is_stopped():
         "m.sendto(b'x', ('127.0.0.1', s.port)); s.wait_ready()\n"
         "print(m.getsockname()[1], flush=True)\n"
         "at = time.monotonic() + 0.3\n"
-        "s.put(at, at + 5.0, math.inf, (0.0,) * 10)\n"
+        "s.put(at, at + 5.0, math.inf, 0.0, (0.0,) * 10)\n"
         "os.kill(os.getpid(), signal.SIGSTOP)\n"  # frozen before the deadline
         "print(s.reports()[0].why, flush=True)\n"
         "m.settimeout(0.5)\n"
@@ -178,3 +180,23 @@ def test_nothing_is_sent_while_the_service_is_stopped():
         proc.kill()
         proc.wait()
     assert "the service was stopped" in why and received == "nothing"
+
+
+def test_a_late_setpoint_is_moved_on_to_when_it_goes_and_a_superseded_one_dropped(link):
+    sender, mavsdk, parser = link
+    # held up 50 ms (here: handed over late), allowed to move on by up to 20 ms
+    now = time.monotonic()
+    p_v_a = (0.0, 0.0, -2.0, 2.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    sender.put(now - 0.05, now + 1.0, math.inf, 0.02, p_v_a)
+    _, msg = _receive(mavsdk, parser)
+    assert math.isclose(msg.x, 2.0 * 0.02 + 0.5 * 0.02 ** 2, rel_tol=1e-6)
+    assert math.isclose(msg.vx, 2.0 + 0.02, rel_tol=1e-6) and msg.afx == 1.0
+    # two handed over after both deadlines (in one write, so that the sender reads
+    # them together): only the newer goes
+    now = time.monotonic()
+    sender._write(RECORD.pack(now - 0.04, now + 1.0, math.inf, 0.0, 1.0, *VALUES[1:])
+                  + RECORD.pack(now - 0.02, now + 1.0, math.inf, 0.0, 2.0, *VALUES[1:]))
+    _, msg = _receive(mavsdk, parser)
+    assert msg.x == 2.0
+    reports = _reports(sender, 3)
+    assert [r.why for r in reports[1:]] == [WHY[SUPERSEDED], ""]
