@@ -11,7 +11,7 @@ cannot change at run time; :data:`FIXED` says why for those that look as if they
 could (the re-timing grid). ``tests/test_envelope.py`` tries random sequences of
 run-time changes and checks that no braking-point speed limit rises.
 
-:func:`check_plausible` refuses a file envelope that is itself implausible for
+:func:`companion.config.check_plausible` refuses a file envelope that is itself implausible for
 a small multicopter (``check-config`` and start-up run it).
 """
 
@@ -148,51 +148,3 @@ def check_change(file: Config, new: Config, changes: dict[str, dict[str, Any]]) 
     if not (u.m <= e.m_max and u.b <= e.b_max):
         raise ConfigError(f"[uncertainty] m, b: ({u.m}, {u.b}) refused; allowed: m at most "
                           f"{e.m_max}, b at most {e.b_max} (the estimator's bounds)")
-
-
-#: Plausible limits of a file envelope for a small multicopter.
-PLAUSIBLE = {
-    ("limits", "v_max"): 30.0,  # m/s
-    ("limits", "a_max"): 30.0,  # m/s^2 per axis
-    ("limits", "j_max"): 1000.0,  # m/s^3 per axis
-    ("limits", "max_solve_s"): 30.0,
-    ("safety", "max_message_age_s"): 60.0,
-    ("safety", "max_input_speed"): 60.0,
-    ("safety", "stitch_tolerance_m"): 5.0,
-    ("safety", "max_tracking_error_m"): 10.0,
-    ("safety", "tracking_lag_s"): 5.0,
-    ("safety", "max_trajectory_points"): 1_000_000,
-    ("uncertainty", "m"): 5.0,
-    ("uncertainty", "semi_axes"): 10.0,
-    ("uncertainty", "d_th"): 20.0,
-    ("inputs", "max_trajectory_bytes"): 256_000_000,
-    ("inputs", "max_map_bytes"): 1_000_000_000,
-    ("inputs", "max_query_bytes"): 1_000_000,
-    ("inputs", "max_map_voxels"): 50_000_000,
-    ("inputs", "decode_timeout_s"): 60.0,
-}
-#: The geofence: horizontally within this many metres of home; vertically from
-#: -100 m (below home: a valley) to this altitude.
-PLAUSIBLE_FENCE_M = 10_000.0
-PLAUSIBLE_CEILING_M = 1_000.0
-
-
-def check_plausible(cfg: Config) -> None:
-    """Refuse a config file whose envelope is implausible (a typo of units, a
-    fence round the planet)."""
-    for (section, name), limit in PLAUSIBLE.items():
-        value = getattr(getattr(cfg, section), name)
-        if any(v > limit for v in (value if isinstance(value, tuple) else (value,))):
-            raise ConfigError(f"[{section}] {name}: {value!r} is implausible for a small "
-                              f"multicopter (at most {limit}); check the units")
-    lo, hi = cfg.safety.geofence_min, cfg.safety.geofence_max
-    if max(abs(v) for v in (*lo[:2], *hi[:2])) > PLAUSIBLE_FENCE_M or lo[2] < -100.0 \
-            or hi[2] > PLAUSIBLE_CEILING_M:
-        raise ConfigError(f"[safety] geofence_min / geofence_max: {list(lo)} to {list(hi)} is "
-                          f"implausible (at most {PLAUSIBLE_FENCE_M:.0f} m from home "
-                          f"horizontally, -100 m to {PLAUSIBLE_CEILING_M:.0f} m vertically)")
-    if not 0 < cfg.uncertainty.delta <= 0.5:
-        raise ConfigError(f"[uncertainty] delta: {cfg.uncertainty.delta} is implausible (a "
-                          "collision probability bound in (0, 0.5])")
-    if not 1e-3 <= cfg.limits.dtau <= 1.0:
-        raise ConfigError(f"[limits] dtau: {cfg.limits.dtau} is implausible (1e-3 to 1 s)")

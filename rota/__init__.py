@@ -11,7 +11,6 @@ call :func:`warm_up` once before the first re-time that must be fast.
 """
 
 from rota.errors import InputError
-from rota.jit import warm_up
 from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
 from rota.result import RetimeResult, Setpoints
 from rota.retime import retime
@@ -21,6 +20,7 @@ from rota.trajectory import (
     SampledTrajectory,
     Trajectory,
 )
+from rota.warmup import warm_up
 
 __all__ = [
     "BSplineTrajectory",

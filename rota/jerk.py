@@ -1,6 +1,6 @@
 """Jerk-limited re-timing (``Limits.j_max`` set): :func:`retime_jerk`.
 
-The unlimited re-time runs first (:func:`rota.retime.retime` without the jerk
+The unlimited re-time runs first (:func:`rota.optimal.retime_free` without the jerk
 bound): its grid, per-node speed limits (braking zones, chance constraints, a
 start that is too fast) and boundary come from it, its optimum is where the
 successive convexification of :mod:`rota.jerkproblem` starts, and its duration
@@ -33,6 +33,7 @@ from rota.jerkproblem import (
     make_points,
     solve,
 )
+from rota.optimal import Infeasible, _boundary, retime_free, uniform_fallback
 from rota.problem import RetimeInput
 from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
 from rota.solver import SolverStats
@@ -65,13 +66,11 @@ def retime_jerk(inp: RetimeInput, finer: int = 1) -> RetimeResult:
     needs (it may be about to switch): then the grid is made ``finer`` (2, then
     4 times; measured: mid-ramp replans of the tests' B-spline failed at the
     0.025 s grid and succeed at 0.0125 s)."""
-    from rota.retime import Infeasible, _boundary, retime  # noqa: PLC0415 - circular
-
     j_max = inp.limits.j_max_vec
     assert j_max is not None
     a_max = inp.limits.a_max_vec
     inp = _hovering(inp)
-    base = retime(replace(inp, limits=replace(inp.limits, j_max=None)))
+    base = retime_free(replace(inp, limits=replace(inp.limits, j_max=None)))
     traj = inp.trajectory
     step = float(base.timemap.tau[1] - base.timemap.tau[0])
     parts = max(1, math.ceil(step / JERK_DTAU - 1e-9)) * finer
@@ -219,11 +218,9 @@ def _acceleration_jump(inp: RetimeInput) -> str | None:
 
 
 def jerk_fallback(inp: RetimeInput, tau: FloatArray, vlim: FloatArray) -> TimeMap:
-    """The uniform slow-down of :func:`rota.retime.uniform_fallback`, slowed further
+    """The uniform slow-down of :func:`rota.optimal.uniform_fallback`, slowed further
     until the jerk at constant ``tau_dot = k`` (``k^3 sigma'''``) meets the bound.
     Like that fallback it keeps the input's own start and end behaviour."""
-    from rota.retime import uniform_fallback  # noqa: PLC0415 - circular
-
     plain = uniform_fallback(inp.trajectory, tau, vlim, inp.limits.a_max_vec)
     k = math.sqrt(float(plain.beta[0]))
     j_max = inp.limits.j_max_vec

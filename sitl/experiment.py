@@ -53,7 +53,7 @@ from rota.voxelmap import VoxelMap
 from sitl.batch import BatchWorlds, SetpointTable, simulate
 from sitl.dynamics import PX4_SIH_QUAD, QuadrotorParams
 from sitl.estimation import DRIFT, EstimationErrorParams
-from sitl.experiment_stats import CellResult, cell_stats
+from sitl.experiment_stats import CellResult, cell_stats, rota_arm, uniform_arm
 from sitl.planner import PlanningError, plan
 from sitl.world import World, forest
 
@@ -133,14 +133,6 @@ class ExperimentConfig:
         if self.uniform:
             out += [uniform_arm(t) for t in self.memories]
         return tuple(out)
-
-
-def rota_arm(memory_s: float) -> str:
-    return f"rota:{memory_s:g}"
-
-
-def uniform_arm(memory_s: float) -> str:
-    return f"uniform:{memory_s:g}"
 
 
 def world_seed(seed: int, density_index: int, trial: int) -> int:

@@ -12,8 +12,16 @@ from dataclasses import asdict
 
 import numpy as np
 
-from sitl.experiment import ExperimentResult, rota_arm, uniform_arm
-from sitl.experiment_stats import CLAIM_P, CLAIM_RATE, CellResult, claim_memory, mcnemar
+from sitl.experiment import ExperimentResult
+from sitl.experiment_stats import (
+    CLAIM_P,
+    CLAIM_RATE,
+    CellResult,
+    claim_memory,
+    mcnemar,
+    rota_arm,
+    uniform_arm,
+)
 
 #: The paper's Table I (collision rate in %, with / without time allocation, 50 trials).
 PAPER_TABLE1: dict[float, dict[float, tuple[float, float]]] = {

@@ -103,11 +103,19 @@ class CellResult:
         return next(p for p in self.pairs if (p.first, p.second) == (first, second))
 
 
+def rota_arm(memory_s: float) -> str:
+    """The name of the ROTA arm with this memory time."""
+    return f"rota:{memory_s:g}"
+
+
+def uniform_arm(memory_s: float) -> str:
+    """The name of its equal-time uniform slow-down."""
+    return f"uniform:{memory_s:g}"
+
+
 def relevant_pairs(config: ExperimentConfig) -> list[tuple[str, str]]:
     """Planner vs each ROTA arm, each ROTA arm vs its equal-time uniform slow-down, the
     paper's ROTA vs each memory arm."""
-    from sitl.experiment import rota_arm, uniform_arm
-
     mem = config.memories
     pairs = [("planned", rota_arm(t)) for t in mem]
     if config.uniform:
@@ -126,8 +134,6 @@ def claim_memory(config: ExperimentConfig) -> float | None:
 def cell_stats(config: ExperimentConfig, kind: str, density_index: int, speed_index: int,
                data: dict) -> CellResult:
     """Statistics of one cell from the merged per-trial data (see :mod:`sitl.experiment`)."""
-    from sitl.experiment import rota_arm, uniform_arm
-
     planned_ok = np.array(data["planned"], dtype=bool)
     status = {k: np.array(v) for k, v in data["status"].items()}
     rejected = planned_ok & np.any([s == "rejected" for s in status.values()], axis=0)

@@ -1,6 +1,6 @@
-"""Dependencies point one way, ``sitl`` -> ``companion`` -> ``rota`` (issue 28): read
-from every module's own import statements (function-level ones too), not from what a
-run happens to load."""
+"""Dependencies point one way, ``sitl`` -> ``companion`` -> ``rota``, and no modules
+import each other in a circle: read from every module's own import statements
+(function-level ones too), not from what a run happens to load."""
 
 from __future__ import annotations
 
@@ -38,3 +38,86 @@ def test_the_check_sees_a_forbidden_import(tmp_path):
     f = tmp_path / "m.py"
     f.write_text("import os\n\ndef g():\n    from sitl.world import get_world\n")
     assert (4, "sitl") in imports(f)
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _runtime_imports(path: Path, name: str, is_package: bool) -> list[str]:
+    """Every module ``path`` imports at run time, at any level (absolute names);
+    imports under ``if TYPE_CHECKING:`` are for the type checker only and left out."""
+    tree = ast.parse(path.read_text(), str(path))
+    skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+            and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING"
+            for n in ast.walk(node)}
+    out = []
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                here = name.split(".") if is_package else name.split(".")[:-1]
+                here = here[:len(here) - node.level + 1]
+                base = ".".join(here + ([node.module] if node.module else []))
+            out += [base] + [f"{base}.{a.name}" for a in node.names]
+    return out
+
+
+def import_cycles(root: Path, packages: tuple[str, ...]) -> list[list[str]]:
+    """The sets of modules of ``packages`` under ``root`` that import each other in a
+    circle (strongly connected, more than one module)."""
+    files = {_module_name(p, root): p for pkg in packages for p in (root / pkg).rglob("*.py")}
+
+    def owner(target: str) -> str | None:
+        while target and target not in files:
+            target = target.rpartition(".")[0]
+        return target or None
+
+    graph = {m: {o for t in _runtime_imports(p, m, p.name == "__init__.py")
+                 if (o := owner(t)) and o != m} for m, p in files.items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            part = stack[stack.index(v):]
+            del stack[stack.index(v):]
+            if len(part) > 1:
+                cycles.append(sorted(part))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return cycles
+
+
+def test_no_module_imports_itself_through_others():
+    """No import circles in the three packages, counting imports made inside
+    functions too (a circle hidden in a function is still one)."""
+    assert import_cycles(ROOT, ("rota", "companion", "sitl")) == []
+
+
+def test_the_cycle_check_sees_a_circle_hidden_in_a_function(tmp_path):
+    pkg = tmp_path / "p"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from p.b import g\n")
+    (pkg / "b.py").write_text("def g():\n    from p import a\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\n"
+                              "if TYPE_CHECKING:\n    from p.a import g\n")
+    assert import_cycles(tmp_path, ("p",)) == [["p.a", "p.b"]]  # (c's is type-only)

@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from companion.config import ConfigError, from_dict, load, to_toml
-from companion.envelope import check_plausible
+from companion.config import ConfigError, check_plausible, from_dict, load, to_toml
 from companion.fleet import Fleet, make_fleet, make_member
 from companion.reconfigure import Reconfigure
 from companion.security import check_exposure, exposure

@@ -1,9 +1,9 @@
 """The one decorator of the kernels: numba's ``njit`` with the on-disk cache when
-:mod:`rota.jit` found a writable directory."""
+:mod:`rota.jitcache` found a writable directory."""
 
 import numba
 
-from rota.jit import cache_enabled
+from rota.jitcache import cache_enabled
 
 
 def njit(fn):
