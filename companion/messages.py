@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from companion.config import Config
-from companion.frames import trajectory_to_enu
+from companion.frames import SIGN, SWAP, ned_to_enu
 from companion.reaction import Timing
 from rota.errors import InputError
 from rota.schema import VERSION, TrajectoryMessage, trajectory_from_dict
@@ -218,3 +218,24 @@ def vec(x: Any, digits: int = 4) -> list[float] | None:
     if x is None:
         return None
     return [round(float(v), digits) for v in np.asarray(x).ravel()]
+
+
+def trajectory_to_enu(traj: Trajectory, frame: str) -> Trajectory:
+    """The same path expressed in ENU (``frame`` is the one it is given in)."""
+    if frame == "ENU":
+        return traj
+    if frame != "NED":
+        raise ValueError(f"unknown frame {frame!r}")
+    if isinstance(traj, Window):
+        offset = None if traj.offset is None else ned_to_enu(traj.offset)
+        return replace(traj, base=trajectory_to_enu(traj.base, frame), offset=offset)
+    if isinstance(traj, BSplineTrajectory):
+        return replace(traj, control_points=ned_to_enu(traj.control_points))
+    if isinstance(traj, PolynomialTrajectory):
+        c = traj.coefficients[:, SWAP, :] * SIGN[None, :, None]
+        return replace(traj, coefficients=c)
+    if isinstance(traj, SampledTrajectory):
+        v = None if traj.v is None else ned_to_enu(traj.v)
+        a = None if traj.a is None else ned_to_enu(traj.a)
+        return replace(traj, p=ned_to_enu(traj.p), v=v, a=a)
+    raise TypeError(f"cannot convert {type(traj).__name__}")

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.frames import SWAP, enu_to_ned, ned_to_enu
 from sitl.dynamics import ControllerParams, QuadrotorParams
 from sitl.estimation import EstimationErrorParams, smooth_coefficients
 from sitl.world import Box, Cylinder, World
@@ -52,16 +53,6 @@ BoolArray = NDArray[np.bool_]
 #: Physics step of the single-vehicle simulator (``VehicleParams.physics_dt_s``).
 DEFAULT_DT = 0.004
 _FAR = 1.0e6  # padding obstacles are placed this far away
-
-
-def enu_to_ned(p: FloatArray) -> FloatArray:
-    """ENU -> NED for arrays ``(..., 3)`` (home at the ENU origin)."""
-    return np.stack([p[..., 1], p[..., 0], -p[..., 2]], axis=-1)
-
-
-def ned_to_enu(p: FloatArray) -> FloatArray:
-    """NED -> ENU for arrays ``(..., 3)`` (the same swap; it is its own inverse)."""
-    return enu_to_ned(p)
 
 
 @dataclass(frozen=True, eq=False)
@@ -497,7 +488,7 @@ def simulate(
                 frozen["pos"][ids] = ned_to_enu(st.pos)
                 frozen["est"][ids] = ned_to_enu(st.pos + st.err)
                 frozen["vel"][ids] = ned_to_enu(st.vel)
-                frozen["std"][ids] = std[:, [1, 0, 2]]  # a std has no sign
+                frozen["std"][ids] = std[:, SWAP]  # a std has no sign
                 if w is not None and hit.any():
                     frozen["vel"][ids[hit]] = 0.0
                 hist["time"].append(np.array(t_now))

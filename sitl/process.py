@@ -41,8 +41,9 @@ class SimReport:
 
 
 def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - other process
+    from companion.frames import ned_to_enu
     from sitl.estimation import EstimationErrorParams
-    from sitl.vehicle import SimVehicle, VehicleParams, ned_to_enu, setpoint_arrays
+    from sitl.vehicle import SimVehicle, VehicleParams, setpoint_arrays
     from sitl.world import World, get_world
 
     world = None
@@ -94,7 +95,7 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
 
 
 def _setpoints_enu(sp: dict[str, np.ndarray], home: Any) -> dict[str, np.ndarray]:
-    from sitl.vehicle import ned_to_enu
+    from companion.frames import ned_to_enu
 
     return {"wall_time": sp["wall_time"], "time_s": sp["time_s"],
             "position": ned_to_enu(sp["position_ned"]) + np.asarray(home),

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.frames import ned_to_enu
 from companion.gs import GroundStation
 from companion.gs.client import GroundStationError
 from sitl.demo import (
@@ -39,7 +40,6 @@ from sitl.observer import Observer
 from sitl.planner import PlanningError
 from sitl.process import SimProcess
 from sitl.proving import ServiceProcess, until
-from sitl.vehicle import ned_to_enu
 from sitl.world import get_world
 
 BACKENDS = ("sitl", "px4")

@@ -33,6 +33,7 @@ from typing import Any, Protocol
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.frames import enu_to_ned, ned_to_enu
 from sitl.commander import FORCE_MAGIC, Commander, Px4Mode
 from sitl.dynamics import (
     PX4_SIH_QUAD,
@@ -122,18 +123,6 @@ def setpoint_arrays(log: list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
             "velocity_ned": rows[:, 5:8], "acceleration_ned": rows[:, 8:11],
             "mode": np.asarray([r[11] for r in log], dtype=str),
             "sent_s": np.asarray([r[12] for r in log], dtype=float) / 1e3}
-
-
-def ned_to_enu(p: np.ndarray) -> np.ndarray:
-    """Convert NED vectors ``(..., 3)`` to ENU: (e, n, u) = (y, x, -z)."""
-    p = np.asarray(p, dtype=float)
-    return np.stack((p[..., 1], p[..., 0], -p[..., 2]), axis=-1)
-
-
-def enu_to_ned(p: np.ndarray) -> np.ndarray:
-    """Convert ENU vectors ``(..., 3)`` to NED: (n, e, d) = (y, x, -z)."""
-    p = np.asarray(p, dtype=float)
-    return np.stack((p[..., 1], p[..., 0], -p[..., 2]), axis=-1)
 
 
 class SimVehicle:

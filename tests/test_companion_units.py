@@ -14,10 +14,9 @@ from companion.frames import (
     enu_to_ned,
     heading_ned_deg,
     ned_to_enu,
-    trajectory_to_enu,
     yaw_enu_to_ned_deg,
 )
-from companion.messages import Rejected, parse_map, parse_trajectory
+from companion.messages import Rejected, parse_map, parse_trajectory, trajectory_to_enu
 from companion.plan import Hold, Plan, blend_time, brake_along
 from companion.stitch import nearest_tau
 from rota import Limits, RetimeInput, retime

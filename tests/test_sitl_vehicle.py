@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.frames import enu_to_ned, ned_to_enu
 from sitl.dynamics import QuadrotorParams, Setpoint
 from sitl.estimation import IDEAL, PX4_SIH_ESTIMATION, EstimationErrorParams
 from sitl.mavsdk_util import free_udp_port
-from sitl.vehicle import Px4Mode, SimVehicle, VehicleParams, enu_to_ned, ned_to_enu
+from sitl.vehicle import Px4Mode, SimVehicle, VehicleParams
 from tests.kinematics import min_jerk
 
 ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
