@@ -45,7 +45,7 @@ test: lint browser
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/rota bench --out docs/bench
+	$(BIN)/rota-sitl bench --out docs/bench
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache .hypothesis

@@ -1,4 +1,4 @@
-"""Regenerate the benchmark data in rota/data/ (paper Table II).
+"""Regenerate the benchmark data in sitl/data/ (paper Table II).
 
 * ``bench_forest_map.json``: the occupancy map (rota/map v1, 0.1 m voxels) of a
   32 m x 32 m forest at the paper's middle density 0.043 trees/m^2
@@ -26,7 +26,7 @@ from sitl.world import forest
 
 DENSITY, SEED, SIZE, RESOLUTION = 0.043, 2, 32.0, 0.1
 V_MAX, A_MAX = 2.0, 1.5
-OUT = Path(__file__).resolve().parents[1] / "rota" / "data"
+OUT = Path(__file__).resolve().parents[1] / "sitl" / "data"
 
 
 def arc_length(traj, n=4000):

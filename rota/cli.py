@@ -1,8 +1,9 @@
 """rota: re-time planner trajectories with ROTA (Robust Optimal Time Allocation).
 
 Re-time a trajectory message (docs/protocol.md) into a result message, write the
-bundled example, re-time and plot the example, or run the paper's Table II with
-peers (docs/benchmarks.md). "rota COMMAND --help" describes each command.
+bundled example, or re-time and plot the example (the paper's Table II with peers
+is "rota-sitl bench": docs/benchmarks.md). "rota COMMAND --help" describes each
+command.
 
 Exit status: 0 the optimal re-time was found; 1 the command cannot run here (a
 missing optional dependency); 2 bad input (the error names the offending field
@@ -27,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from rota.bench import add_bench_parser
 from rota.braking import BrakingParams
 from rota.chance import ChanceParams, UncertaintyModel
 from rota.errors import InputError
@@ -390,7 +390,6 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
 
-    add_bench_parser(sub)
     return parser
 
 
@@ -406,8 +405,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rota {args.command}: {exc}", file=sys.stderr)
         return EXIT_INPUT
     except ModuleNotFoundError as exc:
-        print(f"rota {args.command}: needs {exc.name}, which is not installed (for rota "
-              "bench: pip install 'rota-companion[bench]')", file=sys.stderr)
+        print(f"rota {args.command}: needs {exc.name}, which is not installed",
+              file=sys.stderr)
         return EXIT_UNAVAILABLE
     except KeyboardInterrupt:
         print(f"rota {args.command}: interrupted", file=sys.stderr)

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from rota.bench import load_data
 from rota.schema import TrajectoryMessage, trajectory_to_dict
 from rota.trajectory import BSplineTrajectory
 from rota.voxelmap import VoxelMap
+from sitl.bench import load_data
 from sitl.demo import start_holding, take_off
 from sitl.proving import Flight
 

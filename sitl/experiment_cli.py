@@ -19,7 +19,9 @@ import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
+from companion.cli import one_line
 from rota.chance import DEFAULT_MEMORY_S
+from sitl.bench import add_bench_parser
 from sitl.entry import FLIGHTS
 from sitl.estimation import DRIFT, KINDS, EstimationErrorParams
 from sitl.experiment import VEHICLES, ExperimentConfig, run_experiment
@@ -91,6 +93,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     sub = ap.add_subparsers(dest="group", required=True)
     add_flight_commands(sub)  # (run by sitl.flights_cli: the entry sends them there)
+    add_bench_parser(sub)
     exp = sub.add_parser("experiment", help="run an experiment")
     which = exp.add_subparsers(dest="name", required=True)
     d = ExperimentConfig()
@@ -124,6 +127,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.group in FLIGHTS:
         return flights_main(argv)
+    if args.group == "bench":  # (the peers are the bench extra's)
+        return one_line("rota-sitl bench", lambda: args.func(args), [
+            (ModuleNotFoundError, 1, lambda exc: f"needs {exc.name}, which is not installed "
+             "(pip install 'rota-companion[bench]')"), (OSError, 1, str)])
     try:
         return _run(args, argv)
     except (ValueError, OSError) as exc:  # InputError too: the message names the field

@@ -13,7 +13,7 @@ pytest.importorskip("cvxpy")
 pytest.importorskip("toppra")
 pytest.importorskip("copp_py")
 
-from rota import bench  # noqa: E402
+from sitl import bench  # noqa: E402
 
 
 @pytest.fixture(scope="module")

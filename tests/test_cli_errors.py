@@ -92,9 +92,9 @@ def test_rota_retime_prints_progress_for_long_runs(example, tmp_path):
     assert "grid nodes ..." in r.stderr and "done in" in r.stderr
 
 
-def test_rota_bench_without_the_bench_extra_says_what_to_install():
+def test_rota_sitl_bench_without_the_bench_extra_says_what_to_install():
     code = ("import sys; sys.modules['cvxpy'] = None; sys.modules['copp'] = None; "
-            "sys.modules['toppra'] = None; from rota.cli import main; "
+            "sys.modules['toppra'] = None; from sitl.experiment_cli import main; "
             "sys.exit(main(['bench', '--quick', '--out', '/tmp/rota-bench-none']))")
     r = subprocess.run([PY, "-c", code], capture_output=True, text=True, timeout=120)
     one_line_error(r, 1, "rota-companion[bench]")

@@ -301,7 +301,7 @@ def test_greedy_profile_stays_feasible_on_a_long_deceleration():
     bound just above the next set, and the profile left the sets: 1e-10 grew node by
     node along the final deceleration, and a row with c = -2e-13 at the end made it
     break a row 33,000-fold. It must meet every row and never beat the optimum."""
-    from rota.bench import load_data, run_rota_nodes
+    from sitl.bench import load_data, run_rota_nodes
 
     traj = load_data()[0]["30m"]
     tau = make_grid(traj, 0.01)
@@ -321,7 +321,7 @@ def test_greedy_profile_meets_the_rows_where_the_path_nearly_stops():
     the end); clipping a polygon interpolated from that far corner and rounded the
     controllable set to its ulp (12932.0 for 12931.89), and the greedy profile broke
     the last deceleration row by 8.7e-6 (7 m) and 1.2e-7 (30 m)."""
-    from rota.bench import load_data, run_rota_nodes
+    from sitl.bench import load_data, run_rota_nodes
 
     for name in ("7m", "30m"):
         traj = load_data()[0][name]

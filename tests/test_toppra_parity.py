@@ -15,7 +15,7 @@ pytest.importorskip("toppra")
 
 @pytest.mark.parametrize(("make", "seed"), [(bspline, 3), (bspline, 11), (polynomial, 5)])
 def test_duration_matches_toppra(make, seed):
-    from rota.bench import run_toppra
+    from sitl.bench import run_toppra
 
     traj = make(seed, 7, 1.0)
     lim = Limits(2.0, (2.0, 2.5, 1.5))

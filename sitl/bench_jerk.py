@@ -1,4 +1,4 @@
-"""``rota bench`` rows of the jerk-limited re-time (``Limits.j_max``, :mod:`rota.jerk`).
+"""``rota-sitl bench`` rows of the jerk-limited re-time (``Limits.j_max``, :mod:`rota.jerk`).
 
 The same paths, map and limits as the rest of the benchmark, with the jerk bound
 of PX4's auto modes (``MPC_JERK_AUTO`` = 4 m/s^3): the time of the whole

@@ -1,8 +1,8 @@
-"""``rota bench``: the paper's Table II, side by side with peers.
+"""``rota-sitl bench``: the paper's Table II, side by side with peers.
 
 Re-creates Table II (computation time of the time allocation for a 7 m and a 30 m
 trajectory through a forest map at six trajectory-time steps) on the bundled data
-(``rota/data/bench_*.json``, made by ``examples/make_bench_data.py``) and, on the
+(``sitl/data/bench_*.json``, made by ``examples/make_bench_data.py``) and, on the
 same path and limits, runs
 
 * the full ROTA pipeline (:func:`rota.retime` with the map: braking zones, chance
@@ -14,7 +14,7 @@ same path and limits, runs
   ``copp2_socp``, Rust on Clarabel), next to ROTA on its own problem and on the
   problem as the peers pose it (limits at the nodes only);
 * a straightforward cvxpy formulation of the full ROTA problem (same speed
-  limits) solved by Clarabel, what a user would write by hand (:mod:`rota.bench_peers`).
+  limits) solved by Clarabel, what a user would write by hand (:mod:`sitl.bench_peers`).
 
 Every ROTA answer is checked twice: against Clarabel at 1e-9 on the very same
 problem (objective within 1e-6), and against an independent high-accuracy
@@ -38,27 +38,20 @@ import importlib
 import json
 import math
 import os
-import platform
 import resource
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
 import tracemalloc
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import replace
-from importlib import metadata
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
 import rota.checkpoints as _cp
-from rota import bench_jerk
 from rota import chain as _chain
-from rota.bench_peers import A_MAX, V_MAX, cvxpy_solve, run_copp, run_toppra
 from rota.path import evaluate as _evaluate
 from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
 from rota.retime import retime
@@ -66,6 +59,9 @@ from rota.robust import Safety
 from rota.schema import trajectory_from_dict
 from rota.trajectory import Trajectory
 from rota.voxelmap import VoxelMap
+from sitl import bench_jerk
+from sitl.bench_machine import calibration_s, host_steal_s, machine, startup_costs
+from sitl.bench_peers import A_MAX, V_MAX, cvxpy_solve, run_copp, run_toppra
 
 # the module whose rounds are kept to time its solves (rota.optimal runs them)
 _optimal = importlib.import_module("rota.optimal")
@@ -413,79 +409,8 @@ def fit_exponent(ns: list[int], ts: list[float]) -> float:
 
 
 # -------------------------------------------------------------------- output
-def machine() -> dict[str, str]:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    versions = {}
-    for pkg in ("numba", "clarabel", "numpy", "scipy", "toppra", "copp-py", "cvxpy"):
-        try:
-            versions[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            versions[pkg] = "-"
-    u = platform.uname()
-    return {"cpu": model, "cores": str(os.cpu_count()), "system": f"{u.system} {u.release}",
-            "python": platform.python_version(),
-            "packages": ", ".join(f"{k} {v}" for k, v in versions.items())}
-
-
-def calibration_s() -> float:
-    """Median seconds of a fixed piece of CPU work (Python loop, small numpy calls,
-    a 200 x 200 solve): how fast the machine was in this run. This shared machine's
-    speed varies by up to 2x between runs; the ratios against the paper move with
-    it, those against the peers of the same run do not."""
-    rng = np.random.default_rng(0)
-    a = rng.normal(size=(200, 200)) + 200 * np.eye(200)
-    b = rng.normal(size=200)
-    times = []
-    for _ in range(7):
-        t0 = time.perf_counter()
-        acc = 0.0
-        for i in range(100_000):
-            acc += i * 0.5
-        for _ in range(1000):
-            np.minimum(b, acc)
-        np.linalg.solve(a, b)
-        times.append(time.perf_counter() - t0)
-    return _median(times)
-
-
-def host_steal_s() -> float:
-    """Seconds the hypervisor has taken from this machine's CPUs (``steal`` of
-    ``/proc/stat``, summed over CPUs; 0 where there is none)."""
-    try:
-        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
-        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return 0.0
-
-
 def _ms(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{1e3 * x:.2f}"
-
-
-def startup_costs() -> dict[str, float]:
-    """Seconds for ``import rota``, and for :func:`rota.warm_up` with a cold (empty)
-    and a warm numba cache, each in a fresh Python process."""
-    code = ("import time, sys; t0 = time.perf_counter(); import rota; t1 = time.perf_counter(); "
-            "s = rota.warm_up(sys.argv[1]); print(t1 - t0, s)")
-    out: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as cache:
-        for label in ("cold", "warm"):
-            env = dict(os.environ)
-            r = subprocess.run([sys.executable, "-c", code, cache], capture_output=True,
-                               text=True, env=env, check=True)
-            imp, warm = (float(x) for x in r.stdout.split())
-            out["import_rota_s"] = min(out.get("import_rota_s", imp), imp)
-            out[f"warm_up_{label}_s"] = warm
-    return out
 
 
 def to_markdown(report: dict[str, Any]) -> str:
@@ -493,8 +418,9 @@ def to_markdown(report: dict[str, Any]) -> str:
     lines = [f"Machine: {m['cpu']}, {m['cores']} cores, {m['system']}, Python {m['python']}; "
              f"{m['packages']}.", ""]
     if "calibration_ms" in report:
-        lines += [f"Speed of the machine in this run: the fixed calibration work "
-                  f"(`rota.bench.calibration_s`) took {report['calibration_ms']:.2f} ms; the "
+        lines += ["Speed of the machine in this run: the fixed calibration work "
+                  f"(`sitl.bench_machine.calibration_s`) took {report['calibration_ms']:.2f} "
+                  "ms; the "
                   f"hypervisor took {100 * report['host_steal_share']:.1f} % of the CPUs' time "
                   "during the run.", ""]
     if report.get("startup"):
@@ -569,7 +495,7 @@ def run_bench(out_dir: str | Path, quick: bool = False, repeats: int = 5,
     trajs, vmap = load_data()
     safety = Safety(map=vmap)
     rows_spec = list(QUICK_ROWS) if quick else [(n, d) for n in ("7m", "30m") for d in DTAUS]
-    log(f"rota bench: {len(rows_spec)} rows, {repeats} repeats")
+    log(f"rota-sitl bench: {len(rows_spec)} rows, {repeats} repeats")
     rows = [bench_row(name, dtau, trajs[name], safety, repeats, log)
             for name, dtau in rows_spec]
     topp_rows = []
@@ -607,7 +533,7 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_bench_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``rota bench [--out DIR] [--quick] [--repeats N]``."""
+    """Register ``rota-sitl bench [--out DIR] [--quick] [--repeats N]``."""
     p = subparsers.add_parser("bench", help="re-create the paper's Table II next to peers")
     _bench_arguments(p)
     p.set_defaults(func=bench_main)
@@ -628,8 +554,8 @@ def rota_ok(report: dict[str, Any]) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m rota.bench [--out DIR] [--quick] [--repeats N]``."""
-    parser = argparse.ArgumentParser(prog="python -m rota.bench")
+    """``python -m sitl.bench [--out DIR] [--quick] [--repeats N]``."""
+    parser = argparse.ArgumentParser(prog="python -m sitl.bench")
     _bench_arguments(parser)
     return bench_main(parser.parse_args(argv))
 

@@ -1,4 +1,4 @@
-"""The peers of ``rota bench`` (:mod:`rota.bench`): the ROTA problem written in
+"""The peers of ``rota-sitl bench`` (:mod:`sitl.bench`): the ROTA problem written in
 cvxpy, toppra and copp-py, each on the bench's path and limits."""
 
 from __future__ import annotations
