@@ -117,7 +117,7 @@ class Replanner:
         u, c = job.uncertainty, job.chance
         model = (f"m={u.m:.3g} s, b={u.b:.3g} m, floor={u.floor:.3g} m, memory "
                  f"{u.memory_s:g} s, Delta={c.delta:g}")
-        mask = result.extras.get("braking_mask")
+        mask = result.diagnostics.braking_mask
         if mask is not None and len(mask) > 2 and bool(np.all(mask)):
             self._say_once(("all", model), lambda said: (
                 f"every point of trajectory {ident!r} is a braking point with the model "
@@ -172,7 +172,7 @@ class Replanner:
             "input_duration": round(result.trajectory.duration, 3),
             "solve_time": round(seconds, 4),
             "braking_zones": [[round(a, 3), round(b, 3)]
-                              for a, b in result.extras.get("intervals", ())],
+                              for a, b in result.diagnostics.intervals],
         }
         self._publish(out.payload, out.ros2_payload, out.view)
         for w in result.warnings:

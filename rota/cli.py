@@ -306,7 +306,7 @@ def cmd_retime(args: argparse.Namespace) -> int:
               + (f" ({result.message})" if result.message else ""), file=say)
     for w in result.warnings:
         print(f"warning: {w}", file=say)
-    zones = result.extras.get("intervals", ())
+    zones = result.diagnostics.intervals
     if inp.safety is not None:
         shown = ", ".join(f"{float(a):.2f}-{float(b):.2f}" for a, b in zones) or "none"
         print(f"braking zones (trajectory time, s): {shown}", file=say)

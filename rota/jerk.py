@@ -4,7 +4,7 @@ The unlimited re-time runs first (:func:`rota.optimal.retime_free` without the j
 bound): its grid, per-node speed limits (braking zones, chance constraints, a
 start that is too fast) and boundary come from it, its optimum is where the
 successive convexification of :mod:`rota.jerkproblem` starts, and its duration
-is the flight-time cost's reference (``extras["unlimited_duration"]``). When it
+is the flight-time cost's reference (``diagnostics.unlimited_duration``). When it
 fails, or the jerk-limited problem does, the result is the fallback with the
 reason in words; the fallback's uniform slow-down honours the jerk bound too.
 """
@@ -35,7 +35,7 @@ from rota.jerkproblem import (
 )
 from rota.optimal import Infeasible, _boundary, retime_free, uniform_fallback
 from rota.problem import RetimeInput
-from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
+from rota.result import FALLBACK, OPTIMAL, REJECTED, Outcome, RetimeResult
 from rota.solver import SolverStats
 from rota.timemap import TimeMap
 
@@ -75,13 +75,12 @@ def retime_jerk(inp: RetimeInput, finer: int = 1) -> RetimeResult:
     step = float(base.timemap.tau[1] - base.timemap.tau[0])
     parts = max(1, math.ceil(step / JERK_DTAU - 1e-9)) * finer
     tau, vlim = refine_grid(base.timemap.tau, base.speed_limits, parts)
-    extras = dict(base.extras)
-    extras["unlimited_duration"] = base.duration if base.ok else math.nan
+    found = replace(base.diagnostics, unlimited_duration=base.duration if base.ok else math.nan)
 
-    def fallback(reason: str, status: str = FALLBACK,
+    def fallback(reason: str, status: Outcome = FALLBACK,
                  stats: SolverStats | None = base.solver) -> RetimeResult:
         timemap = jerk_fallback(inp, tau, vlim)
-        return RetimeResult(status, reason, timemap, traj, stats, vlim, extras, base.warnings)
+        return RetimeResult(status, reason, timemap, traj, stats, vlim, found, base.warnings)
 
     if base.status == REJECTED:
         return fallback(base.message, REJECTED)
@@ -165,9 +164,9 @@ def retime_jerk(inp: RetimeInput, finer: int = 1) -> RetimeResult:
         return fallback("the jerk-limited time mapping stops on the way (infinite duration)",
                         stats=stats)
     stats = replace(stats, objective=timemap.duration)
-    extras.update(jerk_steps=steps, jerk_ratio=worst[2], unlimited_duration=base.duration,
-                  jerk_finer=finer)
-    return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, base.warnings)
+    found = replace(found, jerk_steps=steps, jerk_ratio=worst[2],
+                    unlimited_duration=base.duration, jerk_finer=finer)
+    return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, found, base.warnings)
 
 
 def refine_grid(tau: FloatArray, vlim: FloatArray, parts: int

@@ -14,7 +14,7 @@ from rota.chain import Boundary, ChainProblem, describe
 from rota.checkpoints import NO_POINTS, STILL, PathSamples, sample_path
 from rota.path import on_grid
 from rota.problem import RetimeInput, grid_intervals
-from rota.result import FALLBACK, OPTIMAL, REJECTED, RetimeResult
+from rota.result import FALLBACK, OPTIMAL, REJECTED, Diagnostics, Outcome, RetimeResult
 from rota.robust import assess
 from rota.rounds import Audit, finish, more_points, one_round
 from rota.solver import SolverStats
@@ -54,19 +54,19 @@ def retime_free(inp: RetimeInput) -> RetimeResult:
     vlim = np.full(len(tau), inp.limits.v_max)
     if inp.speed_limits is not None:
         vlim = np.minimum(vlim, inp.speed_limits)
-    extras: dict = {}
+    found: dict = {}  # the Diagnostics' fields, as they are found
     warnings: list[str] = []
 
     def fallback(reason: str, stats: SolverStats | None = None,
-                 status: str = FALLBACK) -> RetimeResult:
+                 status: Outcome = FALLBACK) -> RetimeResult:
         timemap = uniform_fallback(traj, tau, vlim, inp.limits.a_max_vec)
-        return RetimeResult(status, reason, timemap, traj, stats, vlim, extras,
+        return RetimeResult(status, reason, timemap, traj, stats, vlim, Diagnostics(**found),
                             tuple(warnings))
 
     if inp.safety is not None:
         seen = assess(traj, tau, inp.safety, position=pos, velocity=d1)
         vlim = np.minimum(vlim, seen.speed_limits)
-        extras.update(intervals=seen.zones.intervals, braking_mask=seen.zones.mask,
+        found.update(intervals=seen.zones.intervals, braking_mask=seen.zones.mask,
                       obstacle_distance=seen.zones.distance,
                       nearest_obstacle=seen.zones.nearest, chance_limits=seen.chance.limit,
                       approach_mask=seen.approach,
@@ -113,7 +113,7 @@ def retime_free(inp: RetimeInput) -> RetimeResult:
         if seen_limits.more is None or rounds == MAX_ROUNDS:
             break
         more = more_points(more, seen_limits.more)
-    extras["solve_rounds"] = rounds
+    found["solve_rounds"] = rounds
     problem_text = check_solution(seen_limits, path, beta, boundary)
     timemap = TimeMap(tau, beta)
     if problem_text is None and not np.isfinite(timemap.duration):
@@ -122,7 +122,8 @@ def retime_free(inp: RetimeInput) -> RetimeResult:
         return fallback(f"solver solution rejected: {problem_text}", stats)
     if vlim is not limit_before:
         warnings.append(_brake_note(inp, path, beta, limit_before, v0))
-    return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, extras, tuple(warnings))
+    return RetimeResult(OPTIMAL, "", timemap, traj, stats, vlim, Diagnostics(**found),
+                        tuple(warnings))
 
 
 def _brake_from_start(inp: RetimeInput, tau: FloatArray, pos: FloatArray, vlim: FloatArray,

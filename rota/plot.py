@@ -45,7 +45,7 @@ def figure(result: RetimeResult, limits: Limits, obstacles: NDArray[np.float64] 
     t_r = np.linspace(0.0, result.duration, 1000)
     sp = result.sample(t_r)
     zones = [(float(result.timemap.real_time(a)[0]), float(result.timemap.real_time(b)[0]))
-             for a, b in result.extras.get("intervals", ())]
+             for a, b in result.diagnostics.intervals]
 
     fig, ax = plt.subplots(2, 2, figsize=(12, 8))
     a_speed, a_acc, a_map, a_top = ax[0, 0], ax[0, 1], ax[1, 0], ax[1, 1]
@@ -80,7 +80,7 @@ def figure(result: RetimeResult, limits: Limits, obstacles: NDArray[np.float64] 
     p = traj.position(tau_o)
     _obstacles(a_top, obstacles, p)
     a_top.plot(p[:, 0], p[:, 1], color="C0", label="path")
-    mask = result.extras.get("braking_mask")
+    mask = result.diagnostics.braking_mask
     if mask is not None and np.any(mask):
         bp = traj.position(result.tau[mask])
         a_top.scatter(bp[:, 0], bp[:, 1], s=8, color="C3", zorder=3, label="braking points")

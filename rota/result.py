@@ -4,7 +4,7 @@ a sampler that turns it into position/velocity/acceleration setpoints (Eqs. 3-5)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -14,10 +14,53 @@ from rota.timemap import TimeMap
 from rota.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
-OPTIMAL = "optimal"
-FALLBACK = "fallback"
-REJECTED = "rejected"
+
+class Outcome(StrEnum):
+    """How a re-time ended (a ``str``: JSON and comparisons see its word)."""
+
+    OPTIMAL = "optimal"
+    FALLBACK = "fallback"
+    REJECTED = "rejected"
+
+
+OPTIMAL, FALLBACK, REJECTED = Outcome.OPTIMAL, Outcome.FALLBACK, Outcome.REJECTED
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnostics:
+    """What the pipeline found besides the time mapping (per-node arrays on the
+    result's grid; None where it did not run).
+
+    Attributes:
+        intervals: the braking zones in trajectory time (Sec. III-B, refined).
+        braking_mask: the braking points, per node (Eq. 6).
+        obstacle_distance: each node's distance to the nearest obstacle (m).
+        nearest_obstacle: that obstacle's point, per node.
+        chance_limits: the chance-constraint speed limit of every node (Eq. 10),
+            applied where ``braking_mask``.
+        approach_mask: nodes slowed by the error memory ahead of a zone.
+        memory_s: the uncertainty model's memory time in use (s).
+        solve_rounds: rounds of constraint generation (:mod:`rota.rounds`).
+        unlimited_duration: with a jerk bound, the duration without it (s).
+        jerk_steps, jerk_ratio, jerk_finer: with a jerk bound, the steps of the
+            successive convexification, the worst jerk over its bound, and how much
+            finer the grid was made (:mod:`rota.jerk`).
+    """
+
+    intervals: tuple[tuple[float, float], ...] | list = ()
+    braking_mask: BoolArray | None = None
+    obstacle_distance: FloatArray | None = None
+    nearest_obstacle: FloatArray | None = None
+    chance_limits: FloatArray | None = None
+    approach_mask: BoolArray | None = None
+    memory_s: float | None = None
+    solve_rounds: int = 0
+    unlimited_duration: float | None = None
+    jerk_steps: int | None = None
+    jerk_ratio: float | None = None
+    jerk_finer: int | None = None
 
 
 @dataclass(frozen=True)
@@ -50,20 +93,17 @@ class RetimeResult:
         trajectory: the input path.
         solver: what Clarabel reported (None when it was not called).
         speed_limits: the per-node speed limit that was imposed (m/s).
-        extras: additional products of the pipeline. With a map: ``intervals``
-            (refined braking zones in trajectory time), ``braking_mask`` (per-node
-            braking points, Eq. 6), ``obstacle_distance`` and ``nearest_obstacle``
-            (per node), ``chance_limits`` (the chance-constraint speed limit of
-            every node, applied where ``braking_mask``); always ``solve_rounds``.
+        diagnostics: what the pipeline found besides (:class:`Diagnostics`: the
+            braking zones and points, the chance limits, the solve's rounds).
     """
 
-    status: str
+    status: Outcome
     message: str
     timemap: TimeMap
     trajectory: Trajectory
     solver: SolverStats | None
     speed_limits: FloatArray
-    extras: dict[str, Any]
+    diagnostics: Diagnostics
     warnings: tuple[str, ...] = ()
 
     @property

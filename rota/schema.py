@@ -21,7 +21,7 @@ import numpy as np
 
 from rota.errors import InputError
 from rota.jerkmap import JerkTimeMap
-from rota.result import RetimeResult
+from rota.result import Diagnostics, Outcome, RetimeResult
 from rota.solver import SolverStats
 from rota.timemap import TimeMap
 from rota.trajectory import (
@@ -206,7 +206,7 @@ def result_to_dict(result: RetimeResult, msg: TrajectoryMessage,
             "objective": result.solver.objective if math.isfinite(result.solver.objective)
             else None,
         },
-        "braking_zones": [list(map(float, iv)) for iv in result.extras.get("intervals", ())],
+        "braking_zones": [list(map(float, iv)) for iv in result.diagnostics.intervals],
         "trajectory": trajectory_to_dict(msg),
     }
     if isinstance(result.timemap, JerkTimeMap):  # jerk-limited: tau_ddot continuous
@@ -243,9 +243,12 @@ def result_from_dict(d: object) -> tuple[RetimeResult, TrajectoryMessage]:
                                                float(s["solve_time"]), float(s["wall_time"]),
                                                float("nan") if s["objective"] is None
                                                else float(s["objective"]))
-    extras = {"intervals": [tuple(iv) for iv in d.get("braking_zones", [])]}
-    result = RetimeResult(str(_require(d, "status")), str(d.get("message", "")),
-                          _timemap(d, tau, beta), msg.trajectory, stats, limits, extras,
+    status = str(_require(d, "status"))
+    if status not in set(Outcome):
+        raise InputError("status", f"must be one of {', '.join(Outcome)}, got {status!r}")
+    found = Diagnostics(intervals=[tuple(iv) for iv in d.get("braking_zones", [])])
+    result = RetimeResult(Outcome(status), str(d.get("message", "")),
+                          _timemap(d, tau, beta), msg.trajectory, stats, limits, found,
                           tuple(str(w) for w in d.get("warnings", [])))
     return result, msg
 

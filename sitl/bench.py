@@ -309,7 +309,7 @@ def bench_row(name: str, dtau: float, traj: Trajectory, safety: Safety, repeats:
     for rep in range(repeats):
         _, solver_s, res = timed("full", lambda: run_rota(full_inp, kept), lambda o: o[0])
         times["solver"].append(solver_s)
-        rounds = res.extras.get("solve_rounds", 0)
+        rounds = res.diagnostics.solve_rounds
         outs["full"] = res
         if rep and n > CVXPY_ONCE:
             continue  # beyond CVXPY_ONCE intervals the comparison columns run once

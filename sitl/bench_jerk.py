@@ -59,7 +59,7 @@ def jerk_row(name: str, dtau: float, traj: Trajectory, safety: Safety, v_max: fl
             "limited_s": out.duration,
             "cost": out.duration / base.duration - 1 if out.ok else float("nan"),
             "fd_jerk_unlimited": fd_jerk_peak(base), "fd_jerk_limited": fd_jerk_peak(out),
-            "steps": out.extras.get("jerk_steps")}
+            "steps": out.diagnostics.jerk_steps}
 
 
 def jerk_rows(trajs: dict[str, Trajectory], safety: Safety, v_max: float, a_max: float,

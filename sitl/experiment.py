@@ -171,6 +171,11 @@ def _rota_sampler(result):
     return sample
 
 
+def _or_zero(mask: np.ndarray | None) -> np.ndarray | list[float]:
+    """A per-node mask, or [0.0] where the pipeline did not make one (no map)."""
+    return [0.0] if mask is None else mask
+
+
 def _nan_record(rec: dict, cfg: ExperimentConfig, status: str, message: str) -> None:
     rec["planned"].append(status != "no-plan")
     for t in cfg.memories:
@@ -236,9 +241,9 @@ def run_task(config: ExperimentConfig, density_index: int, trials: Sequence[int]
                 rec["status"][key].append(res.status)
                 rec["message"][key].append(res.message)
                 rec["braking_fraction"][key].append(
-                    float(np.mean(res.extras.get("braking_mask", [0.0]))))
+                    float(np.mean(_or_zero(res.diagnostics.braking_mask))))
                 rec["approach_fraction"][key].append(
-                    float(np.mean(res.extras.get("approach_mask", [0.0]))))
+                    float(np.mean(_or_zero(res.diagnostics.approach_mask))))
                 rec["duration"][rota_arm(t_mem)].append(res.duration)
                 rows[rota_arm(t_mem)].append(_table_rows(_rota_sampler(res), res.duration,
                                                          cfg.rate_hz))

@@ -138,7 +138,7 @@ def test_estimator_learns_in_flight_slows_braking_zones_and_survives_restart():
                             braking=cfg.braking_params())
             r = retime(RetimeInput(trajectory=traj, limits=Limits(2.0, (2.0, 2.0, 1.5)),
                                    dtau=0.05, safety=safety))
-            mask = r.extras["braking_mask"]
+            mask = r.diagnostics.braking_mask
             assert r.ok and mask.any()
             return r.speed_limits[mask].mean(), r.duration
 

@@ -80,7 +80,7 @@ def flight(tmp_path_factory):
                     braking=BrakingParams(d_th=1.0))
     res = retime(RetimeInput(trajectory=traj, limits=Limits(V_MAX, 3.0), dtau=0.05,
                              smoothness=0.02, safety=safety))
-    assert res.ok and res.extras["intervals"], res.message
+    assert res.ok and res.diagnostics.intervals, res.message
     result = result_to_dict(res, TrajectoryMessage(traj, id="plan-0", frame="ENU"))
     rec = Recorder(tmp_path_factory.mktemp("fox"), "t").start()
     t0 = 1_800_000_000.0
@@ -149,7 +149,7 @@ def test_the_plan_shows_both_paths_speed_colours_and_braking_zones(flight):
     (_, update), = flight["decoded"]["/foxglove/plan"]
     entity, = update.entities
     res = flight["res"]
-    zones = res.extras["intervals"]
+    zones = res.diagnostics.intervals
     planned, retimed, *zone_lines = entity.lines
     assert len(zone_lines) == len(zones)
     pts = np.array([[p.x, p.y, p.z] for p in retimed.points])
@@ -196,7 +196,7 @@ def test_setpoints_vehicle_pose_and_plots_follow_the_flight(flight):
     limits = np.interp(sp.t, res.t, res.speed_limits)
     assert np.allclose([c["chance_limit"] for c in cmd], limits, atol=1e-3)
     in_zone = np.array([c["braking_zone"] for c in cmd])
-    a, b = res.extras["intervals"][0]
+    a, b = res.diagnostics.intervals[0]
     assert np.array_equal(in_zone, (sp.tau >= a - 1e-9) & (sp.tau <= b + 1e-9))
     assert in_zone.any()
     veh = [m for _, m in got["/plot/vehicle"]]

@@ -49,7 +49,7 @@ def test_jerk_bound_holds_by_finite_differences(kind):
     assert speed.max() <= 2.0 * (1 + FD_TOL)
     assert np.abs(acc).max() <= 3.0 * (1 + FD_TOL)
     assert result.duration >= free.duration
-    assert result.extras["unlimited_duration"] == pytest.approx(free.duration)
+    assert result.diagnostics.unlimited_duration == pytest.approx(free.duration)
     # ends at rest, with no acceleration left to drop
     end = result.sample([0.0, result.duration])
     assert np.allclose(end.velocity, 0.0, atol=1e-9)
@@ -114,7 +114,7 @@ def test_same_problem_on_an_eight_times_finer_grid(monkeypatch):
         assert coarse.ok and fine.ok, (coarse.message, fine.message)
         assert len(fine.tau) - 1 == 8 * (len(coarse.tau) - 1)
         assert abs(coarse.duration / fine.duration - 1) <= 0.005
-        assert coarse.duration >= coarse.extras["unlimited_duration"]
+        assert coarse.duration >= coarse.diagnostics.unlimited_duration
 
 
 def test_a_path_whose_acceleration_jumps_falls_back_in_words():

@@ -83,7 +83,7 @@ def test_zero_memory_is_the_papers_retime():
     paper = run(line(0.0, 10.0), safety(pillar()))
     zero = _with_memory(0.0)
     assert np.array_equal(paper.beta, zero.beta)
-    assert not zero.extras["approach_mask"].any() and zero.extras["memory_s"] == 0.0
+    assert not zero.diagnostics.approach_mask.any() and zero.diagnostics.memory_s == 0.0
 
 
 @pytest.mark.parametrize("t", [0.5, 1.0, 2.0])
@@ -92,9 +92,9 @@ def test_vehicle_is_at_the_limit_for_memory_seconds_before_each_braking_point(t)
     (checked on the re-timed trajectory sampled at 1 kHz, not on the caps)."""
     res = _with_memory(t)
     assert res.ok, res.message
-    mask = res.extras["braking_mask"]
-    limits = res.extras["chance_limits"]
-    assert mask.any() and res.extras["approach_mask"].any()
+    mask = res.diagnostics.braking_mask
+    limits = res.diagnostics.chance_limits
+    assert mask.any() and res.diagnostics.approach_mask.any()
     times = res.timemap.t
     fine = np.arange(0.0, res.duration, 1e-3)
     speed = np.linalg.norm(res.sample(fine).velocity, axis=1)
@@ -108,12 +108,12 @@ def test_more_memory_brakes_earlier_and_takes_longer():
     assert all(r.ok for r in res)
     durations = [r.duration for r in res]
     assert durations == sorted(durations) and durations[-1] > durations[0] * 1.02
-    approach = [int(r.extras["approach_mask"].sum()) for r in res]
+    approach = [int(r.diagnostics.approach_mask.sum()) for r in res]
     assert approach == sorted(approach) and approach[0] == 0
     # The per-point chance limits are the paper's; memory only adds caps (also inside a
     # zone, where a closer point ahead already limits the points before it).
     for r in res[1:]:
-        assert np.array_equal(r.extras["chance_limits"], res[0].extras["chance_limits"])
-        assert np.array_equal(r.extras["braking_mask"], res[0].extras["braking_mask"])
+        assert np.array_equal(r.diagnostics.chance_limits, res[0].diagnostics.chance_limits)
+        assert np.array_equal(r.diagnostics.braking_mask, res[0].diagnostics.braking_mask)
         assert np.all(r.speed_limits <= res[0].speed_limits)
     assert node_speed(res[-1]).max() > 2.5  # far from the pillar it is fast again

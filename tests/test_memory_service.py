@@ -33,9 +33,9 @@ def test_configured_memory_reaches_the_retime():
             res = retimer._replan(_job(cfg, line(0.0, 10.0))).result
             assert res.ok, res.message
             out[t] = res
-        assert out[1.5].extras["memory_s"] == 1.5 and out[0.0].extras["memory_s"] == 0.0
-        assert out[1.5].extras["approach_mask"].any()
-        assert not out[0.0].extras["approach_mask"].any()
+        assert out[1.5].diagnostics.memory_s == 1.5 and out[0.0].diagnostics.memory_s == 0.0
+        assert out[1.5].diagnostics.approach_mask.any()
+        assert not out[0.0].diagnostics.approach_mask.any()
         assert out[1.5].duration > out[0.0].duration
         assert np.all(out[1.5].speed_limits <= out[0.0].speed_limits)
     finally:

@@ -63,8 +63,8 @@ def test_pillar_ahead_brakes_then_reaccelerates():
     free = run(traj)
     robust = run(traj, safety(pillar()))
     assert free.ok and robust.ok, robust.message
-    mask = robust.extras["braking_mask"]
-    assert mask.any() and robust.extras["intervals"]
+    mask = robust.diagnostics.braking_mask
+    assert mask.any() and robust.diagnostics.intervals
     x = traj.position(robust.tau)[:, 0]
     # braking points: ahead of the pillar only (x <= 5), within d_th
     assert np.all(x[mask] <= 5.0 + 0.1) and np.all(x[mask] >= 5.0 - 1.1)  # pillar r = 0.1
@@ -83,7 +83,7 @@ def test_same_pillar_behind_changes_nothing():
     traj = line(5.05, 15.0)  # starts beside the pillar and flies away from it
     free = run(traj)
     robust = run(traj, safety(pillar()))
-    assert robust.ok and not robust.extras["braking_mask"].any()
+    assert robust.ok and not robust.diagnostics.braking_mask.any()
     assert robust.duration == pytest.approx(free.duration, rel=1e-6)
     assert np.allclose(robust.beta, free.beta, rtol=1e-5, atol=1e-8)
 
@@ -95,7 +95,7 @@ def test_monte_carlo_collision_probability_within_delta_in_braking_zone():
     safe = safety(pillar(), delta=delta)
     result = run(line(0.0, 10.0), safe)
     assert result.ok
-    mask = result.extras["braking_mask"]
+    mask = result.diagnostics.braking_mask
     p, d1, _ = result.trajectory.evaluate(result.tau[mask])
     vel = d1 * np.sqrt(result.beta[mask])[:, None]
     _, obstacle = safe.map.nearest(p)
@@ -114,7 +114,7 @@ def test_more_uncertainty_means_slower_and_longer():
     low = run(traj, safety(pillar(), m=0.1))
     high = run(traj, safety(pillar(), m=0.4))
     assert low.ok and high.ok
-    mask = high.extras["braking_mask"]
+    mask = high.diagnostics.braking_mask
     assert np.all(high.speed_limits[mask] <= low.speed_limits[mask] + 1e-12)
     assert node_speed(high)[mask].max() < node_speed(low)[mask].max()
     assert high.duration > low.duration
@@ -124,7 +124,7 @@ def test_delta_near_one_makes_the_chance_constraint_inactive():
     traj = line(0.0, 10.0)
     free = run(traj)
     loose = run(traj, safety(pillar(), delta=0.999999))
-    assert loose.ok and loose.extras["braking_mask"].any()
+    assert loose.ok and loose.diagnostics.braking_mask.any()
     assert loose.duration == pytest.approx(free.duration, rel=1e-6)
 
 
@@ -189,3 +189,23 @@ def test_cli_with_map_shades_braking_zones(tmp_path):
     dump(pillar(gap=-0.1).to_dict(), mp)
     assert main(["retime", str(src), "-o", str(out), "--map", str(mp)]) == 4
     assert json.loads(out.read_text())["status"] == "rejected"
+
+
+def test_the_outcome_is_an_enum_whose_json_keeps_its_word_and_diagnostics_are_typed():
+    import json
+
+    from rota.errors import InputError
+    from rota.result import Diagnostics, Outcome
+    from rota.schema import TrajectoryMessage, result_from_dict, result_to_dict
+
+    traj = line(0.0, 10.0)
+    robust = run(traj, safety(pillar()))
+    assert robust.status is Outcome.OPTIMAL and robust.status == "optimal"
+    assert isinstance(robust.diagnostics, Diagnostics) and robust.diagnostics.solve_rounds >= 1
+    d = json.loads(json.dumps(result_to_dict(robust, TrajectoryMessage(traj, id="p"))))
+    assert d["status"] == "optimal" and d["braking_zones"]
+    back, _ = result_from_dict(d)
+    assert back.status is Outcome.OPTIMAL
+    assert [list(z) for z in back.diagnostics.intervals] == d["braking_zones"]
+    with pytest.raises(InputError, match="status"):
+        result_from_dict({**d, "status": "fine"})

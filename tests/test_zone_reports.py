@@ -44,7 +44,7 @@ def test_a_model_that_makes_every_point_a_braking_point_is_said_once():
     chance = ChanceParams(delta=1e-3, semi_axes=(0.2,) * 3, v_floor=0.3, v_max=2.0)
     # (the pillar at the end: it is ahead of every point, and within the 6.7 m reach)
     rp, result, job, report = _case(model, chance, pillar_x=6.3)
-    assert np.all(result.extras["braking_mask"])
+    assert np.all(result.diagnostics.braking_mask)
     rp._report_zones("p", result, job)
     rp._report_zones("p", result, job)  # the same model again: not repeated
     said = [w for w in report.warnings if "every point" in w]
@@ -57,7 +57,7 @@ def test_a_model_that_can_never_brake_before_an_obstacle_is_said():
     chance = ChanceParams(delta=1e-3, semi_axes=(0.2,) * 3, obstacle_std=(0.0,) * 3,
                           v_floor=0.3, v_max=2.0)
     rp, result, job, report = _case(model, chance)
-    assert not np.any(result.extras["braking_mask"])
+    assert not np.any(result.diagnostics.braking_mask)
     rp._report_zones("p", result, job)
     assert any("no braking zone can come before" in w for w in report.warnings), report.warnings
 
@@ -66,7 +66,7 @@ def test_a_sensible_model_is_not_reported():
     model = UncertaintyModel(m=0.1, b=0.1, floor=0.05)
     chance = ChanceParams(delta=1e-3, semi_axes=(0.2,) * 3, v_floor=0.3, v_max=2.0)
     rp, result, job, report = _case(model, chance)
-    mask = result.extras["braking_mask"]
+    mask = result.diagnostics.braking_mask
     assert mask.any() and not mask.all()  # zones near the pillar only
     rp._report_zones("p", result, job)
     assert report.warnings == [] or not any("braking" in w for w in report.warnings)
