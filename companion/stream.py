@@ -66,6 +66,7 @@ from companion.plan import (
     brake_along,
 )
 from companion.reaction import Reactions
+from companion.sender import NICE_STEP
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -77,8 +78,9 @@ LOSS_SHARE = 0.8
 #: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
 STEP_SLACK_M = 0.01
 #: The stream's thread runs this many nice levels above the service (needs
-#: CAP_SYS_NICE; without it, at the service's own priority, and status says so).
-STREAM_NICE_STEP = 5
+#: CAP_SYS_NICE; without it, at the service's own priority, and status says so), as
+#: the setpoint sender does.
+STREAM_NICE_STEP = NICE_STEP
 #: A tick this late (s) is logged with the kernel's account of why
 #: (:mod:`companion.lateness`).
 LATE_TICK_S = 0.06
