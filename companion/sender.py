@@ -72,9 +72,11 @@ WHY = {LATE: "computed before a stall and not sent after it",
        SUPERSEDED: "held up past the next setpoint's deadline: the next one went instead"}
 #: The handshake: the process's UDP port (first report), then ready (it has heard MAVSDK).
 HELLO, READY = -10.0, -11.0
-#: The sender runs this many nice levels above the service, as the stream's thread does
-#: (needs CAP_SYS_NICE, as the service's own priority does; without it, at the
-#: service's priority, and the stream's warning on status says why).
+#: The sender runs real-time at this SCHED_FIFO priority (the lowest) where it may, else
+#: this many nice levels above the service, as the stream's thread does (both need
+#: CAP_SYS_NICE, as the service's own priority does; without it, at the service's
+#: priority, and the stream's warning on status says why).
+RT_PRIORITY = 1
 NICE_STEP = 5
 #: The sender's own MAVLink component id (MAV_COMP_ID_ONBOARD_COMPUTER2): not MAVSDK's.
 COMPONENT_ID = 194
@@ -211,9 +213,7 @@ def serve(boot: float, source: tuple[int, int], target: tuple[int, int]) -> None
     """The sender process: read setpoints from stdin, send each at its deadline."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    with contextlib.suppress(OSError):  # (a busy CPU then wakes it first)
-        os.setpriority(os.PRIO_PROCESS, 0, max(os.getpriority(os.PRIO_PROCESS, 0) - NICE_STEP,
-                                               -20))
+    _raise_priority()
     from pymavlink.dialects.v20 import common as mavlink2
 
     mav = mavlink2.MAVLink(None, srcSystem=source[0], srcComponent=source[1])
@@ -291,6 +291,22 @@ def shifted(values: tuple[float, ...] | list[float], dt: float) -> tuple[float, 
     if not dt > 0:
         return tuple(values)
     return (*(values[i] + values[3 + i] * dt for i in range(3)), *values[3:])
+
+
+def _raise_priority() -> None:
+    """Real-time (SCHED_FIFO at :data:`RT_PRIORITY`) where the process may (root or
+    CAP_SYS_NICE): it then runs the moment its deadline comes, before any ordinary
+    work (it sleeps more than 99 % of the time; the kernel's real-time throttling
+    would still leave ordinary work 5 % of each CPU if it ever spun). Else
+    :data:`NICE_STEP` nice levels above the service, if it may; else at the service's."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        return
+    except (OSError, AttributeError):
+        pass
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, 0, max(os.getpriority(os.PRIO_PROCESS, 0) - NICE_STEP,
+                                               -20))
 
 
 def _stopped(stat: str) -> bool:

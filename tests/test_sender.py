@@ -204,25 +204,34 @@ def test_a_late_setpoint_is_moved_on_to_when_it_goes_and_a_superseded_one_droppe
     assert [r.why for r in reports[1:]] == [WHY[SUPERSEDED], ""]
 
 
-def test_it_runs_above_the_service_where_it_may():
-    """As the stream's thread: NICE_STEP levels above its parent where the process may
-    raise its priority (root or CAP_SYS_NICE), else at the parent's."""
-    from companion.sender import NICE_STEP
+def test_it_runs_real_time_where_it_may_else_above_the_service():
+    """SCHED_FIFO where the process may (root or CAP_SYS_NICE), else NICE_STEP nice
+    levels above its parent where it may, else at its parent's priority."""
+    from companion.sender import NICE_STEP, RT_PRIORITY
 
+    def may(code: str) -> bool:  # (a child of this test tries it)
+        return subprocess.run([sys.executable, "-c", f"import os; {code}"],
+                              capture_output=True).returncode == 0
+
+    here = os.getpriority(os.PRIO_PROCESS, 0)
+    rt = may(f"os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({RT_PRIORITY}))")
+    nicer = may(f"os.setpriority(os.PRIO_PROCESS, 0, {max(here - 1, -20)})")
     sender = SetpointSender.spawn(BOOT, (245, 194), (1, 1))
     try:
-        here = os.getpriority(os.PRIO_PROCESS, 0)
-        try:  # may this process raise a priority at all? (a child of ours is the test)
-            probe = subprocess.run([sys.executable, "-c", "import os; os.setpriority("
-                                    f"os.PRIO_PROCESS, 0, {max(here - 1, -20)})"])
-            may = probe.returncode == 0
-        except OSError:
-            may = False
-        want = max(here - NICE_STEP, -20) if may else here
+        pid = sender._proc.pid
+
+        def state() -> tuple[int, int]:
+            return os.sched_getscheduler(pid), os.getpriority(os.PRIO_PROCESS, pid)
+
+        if rt:
+            want = (os.SCHED_FIFO, here)
+        else:
+            want = (os.SCHED_OTHER, max(here - NICE_STEP, -20) if nicer else here)
         end = time.monotonic() + 10
-        while os.getpriority(os.PRIO_PROCESS, sender._proc.pid) != want \
-                and time.monotonic() < end:  # (set as the process starts)
+        while state() != want and time.monotonic() < end:  # (set as it starts)
             time.sleep(0.01)
-        assert os.getpriority(os.PRIO_PROCESS, sender._proc.pid) == want
+        assert state() == want
+        if rt:
+            assert os.sched_getparam(pid).sched_priority == RT_PRIORITY
     finally:
         sender.close()
