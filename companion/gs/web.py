@@ -365,6 +365,6 @@ def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
     except KeyboardInterrupt:
         pass
     finally:
-        stop(server)
+        path.unlink(missing_ok=True)  # first: the token dies with the session, whatever
+        stop(server)                  # closing Zenoh below does
         station.close()
-        path.unlink(missing_ok=True)
