@@ -28,7 +28,9 @@ import numpy as np
 from rota import BSplineTrajectory, Limits, RetimeInput, retime
 cps = np.array(json.load(open(sys.argv[1]))["control_points"])
 traj = BSplineTrajectory(control_points=cps, knot_span=1.0)
-retime(RetimeInput(trajectory=traj, limits=Limits(2.0, 3.0), dtau=0.1))  # load the kernels
+# the very call the loop makes, once: every kernel it needs is loaded (or compiled, in
+# a fresh checkout whose cache other processes are still filling) before Ctrl-C
+retime(RetimeInput(trajectory=traj, limits=Limits(2.0, 3.0), dtau={DTAU}))
 print("ready", flush=True)
 try:
     while True:
