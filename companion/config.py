@@ -73,6 +73,8 @@ class StreamSection:
     rate_hz: float = 50.0  # setpoint stream rate
     prestream_s: float = 1.5  # setpoints streamed before requesting OFFBOARD (PX4: ~1 s)
     yaw: str = "path"  # "path": face along the path; "hold": keep the yaw at start
+    yaw_rate_max_deg_s: float = 45.0  # the streamed yaw turns no faster (PX4 MPC_YAWRAUTO_MAX)
+    yaw_accel_max_deg_s2: float = 90.0  # nor changes its rate faster (companion/heading.py)
     takeoff_altitude_m: float = 1.5
     auto_start: bool = False  # arm, take off and start offboard on the first trajectory
     stall_budget_s: float = 0.25  # a longer stall of the loop brakes (docs/service.md)
@@ -388,6 +390,7 @@ def validate(cfg: Config) -> None:
     for section, name in [("mavlink", "connect_timeout_s"), ("mavlink", "health_timeout_s"),
                           ("mavlink", "link_timeout_s"), ("mavlink", "offboard_loss_timeout_s"),
                           ("stream", "stall_budget_s"), ("zenoh", "telemetry_rate_hz"),
+                          ("stream", "yaw_rate_max_deg_s"), ("stream", "yaw_accel_max_deg_s2"),
                           ("zenoh", "status_rate_hz"), ("stream", "rate_hz"),
                           ("stream", "takeoff_altitude_m"), ("limits", "v_max"),
                           ("limits", "a_max"), ("limits", "dtau"), ("limits", "max_solve_s"),

@@ -55,6 +55,7 @@ from companion import messages as msgs
 from companion.autopilot import Autopilot
 from companion.config import Config
 from companion.frames import heading_ned_deg
+from companion.heading import Heading
 from companion.lateness import TickClock
 from companion.plan import (
     Brake,
@@ -151,7 +152,9 @@ class SetpointStream:
         self.next_plan: Plan | None = None  # takes over at its t0
         self.streaming = False
         self.started = 0.0
-        self.yaw_ned = 0.0
+        self.yaw_ned = 0.0  # the yaw streamed (NED, deg)
+        self.heading = Heading(0.0)  # ... and its rate (companion/heading.py)
+        self.yaw_target = 0.0  # where it turns to (the path's direction, or the start's)
         self.halted: str | None = None  # why plans may not fly until the next start
         self.on_halt: Callable[[str, bool], None] = lambda reason, ended: None
         self.send_times: deque[float] = deque(maxlen=3000)  # when setpoints went out
@@ -189,7 +192,8 @@ class SetpointStream:
         """Start streaming a hold at ``position``."""
         with self.lock:
             self.source, self.next_plan = Hold(position.copy(), reason), None
-            self.yaw_ned = yaw_ned
+            self.yaw_ned = self.yaw_target = yaw_ned
+            self.heading = Heading(yaw_ned)
             self.halted, self.last_sent = None, None
             self.streaming, self.started = True, time.monotonic()
 
@@ -512,8 +516,14 @@ class SetpointStream:
         return cfg.limits.v_max + blend_speed(cfg.safety.stitch_tolerance_m)
 
     def _update_yaw(self, cmd: Command) -> None:
-        if self._cfg().stream.yaw == "path" and np.linalg.norm(cmd.velocity[:2]) > 0.3:
-            self.yaw_ned = heading_ned_deg(cmd.velocity)
+        """The next yaw: toward the path's direction (or the start's), within the yaw
+        rate and acceleration limits (:mod:`companion.heading`)."""
+        s = self._cfg().stream
+        if s.yaw == "path" and np.linalg.norm(cmd.velocity[:2]) > 0.3:
+            self.yaw_target = heading_ned_deg(cmd.velocity)
+        self.heading = self.heading.toward(self.yaw_target, 1.0 / s.rate_hz,
+                                           s.yaw_rate_max_deg_s, s.yaw_accel_max_deg_s2)
+        self.yaw_ned = self.heading.yaw_deg
 
     def vehicle_yaw(self) -> float:
         """The vehicle's heading now (NED yaw, deg): the yaw to hold at first."""

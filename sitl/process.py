@@ -101,7 +101,7 @@ def _setpoints_enu(sp: dict[str, np.ndarray], home: Any) -> dict[str, np.ndarray
             "position": ned_to_enu(sp["position_ned"]) + np.asarray(home),
             "velocity": ned_to_enu(sp["velocity_ned"]),
             "acceleration": ned_to_enu(sp["acceleration_ned"]), "mode": sp["mode"],
-            "sent_s": sp["sent_s"]}
+            "sent_s": sp["sent_s"], "yaw_ned_deg": np.degrees(sp["yaw_ned_rad"])}
 
 
 class SimProcess:

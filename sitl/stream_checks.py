@@ -165,3 +165,22 @@ def check_stream(setpoints: dict[str, np.ndarray], allowed_speed: float,
         host_steal_gaps=int(np.count_nonzero(stolen)), host_steal_s=float(stolen.sum()),
         max_gap_with_steal_s=float((gaps + stolen).max()) if len(gaps) else 0.0,
         max_commanded_speed=float(np.max(np.linalg.norm(v[finite], axis=1), initial=0.0)))
+
+
+def fastest_yaw_rate(setpoints: dict[str, np.ndarray], period: float,
+                     window: tuple[float, float] | None = None) -> float:
+    """The fastest the yaw the vehicle received turned (deg/s): each change between
+    consecutive setpoints over their spacing by send stamps, and at least ``period``
+    (the stream's tick: a setpoint sent late carries its tick's yaw, so the next, on
+    time, may follow it closely)."""
+    wall = np.asarray(setpoints["wall_time"], dtype=float)
+    keep = np.ones(len(wall), dtype=bool) if window is None else \
+        (wall >= window[0]) & (wall <= window[1])
+    yaw = np.asarray(setpoints["yaw_ned_deg"], dtype=float)[keep]
+    sent = np.asarray(setpoints["sent_s"], dtype=float)[keep]
+    ok = np.isfinite(yaw)
+    yaw, sent = yaw[ok], sent[ok]
+    if len(yaw) < 2:
+        return 0.0
+    step = np.abs((np.diff(yaw) + 180.0) % 360.0 - 180.0)
+    return float(np.max(step / np.maximum(np.diff(sent), period)))

@@ -116,13 +116,15 @@ class History:
 def setpoint_arrays(log: list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
     """:attr:`SimVehicle.setpoint_log` as arrays: ``wall_time`` (host monotonic s),
     ``time_s`` (sim), ``position_ned``, ``velocity_ned``, ``acceleration_ned`` (n, 3;
-    NaN where the type mask ignores a field), ``mode`` (at arrival) and ``sent_s``
-    (the message's time_boot_ms in seconds: when the sender sent it, on its clock)."""
+    NaN where the type mask ignores a field), ``mode`` (at arrival), ``sent_s``
+    (the message's time_boot_ms in seconds: when the sender sent it, on its clock) and
+    ``yaw_ned_rad`` (NaN if not set)."""
     rows = np.asarray([r[:11] for r in log], dtype=float).reshape(-1, 11)
     return {"wall_time": rows[:, 0], "time_s": rows[:, 1], "position_ned": rows[:, 2:5],
             "velocity_ned": rows[:, 5:8], "acceleration_ned": rows[:, 8:11],
             "mode": np.asarray([r[11] for r in log], dtype=str),
-            "sent_s": np.asarray([r[12] for r in log], dtype=float) / 1e3}
+            "sent_s": np.asarray([r[12] for r in log], dtype=float) / 1e3,
+            "yaw_ned_rad": np.asarray([r[13] for r in log], dtype=float)}
 
 
 class SimVehicle:
@@ -380,7 +382,7 @@ class SimVehicle:
             if self._record:
                 self.setpoint_log.append((time.monotonic(), self.time_s, *setpoint.position,
                                           *setpoint.velocity, *setpoint.acceleration,
-                                          self.mode.name, sent_ms))
+                                          self.mode.name, sent_ms, setpoint.yaw))
             self.commander.on_offboard_setpoint(setpoint)
 
     def inject_message(self, msg: Any) -> None:

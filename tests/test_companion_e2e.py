@@ -38,7 +38,7 @@ from sitl.demo import (
 )
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
-from sitl.stream_checks import check_stream
+from sitl.stream_checks import check_stream, fastest_yaw_rate
 from sitl.world import get_world
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
@@ -109,6 +109,15 @@ def test_three_replans_reach_the_goal_without_collision_or_jumps_and_are_recorde
     # every replan joined onto the command and re-timed as flown: no velocity over v_max
     # (within the re-timer's 1 % between check points) was ever commanded
     assert figures.max_commanded_speed <= SPEED * 1.01, figures.summary()
+    # the yaw PX4 received turned with the path through every replan, never faster than
+    # [stream] yaw_rate_max_deg_s (no step when a plan takes over)
+    cfg = service.cfg.stream
+    turned = fastest_yaw_rate(report.setpoints, 1.0 / cfg.rate_hz, window)
+    yaw = report.setpoints["yaw_ned_deg"][(report.setpoints["wall_time"] >= window[0])
+                                          & (report.setpoints["wall_time"] <= window[1])]
+    spread = float(np.ptp(np.unwrap(np.radians(yaw[np.isfinite(yaw)]))) * 180 / np.pi)
+    print(f"yaw: fastest turn {turned:.1f} deg/s, spread {spread:.0f} deg")
+    assert turned <= cfg.yaw_rate_max_deg_s * 1.001 and spread > 5.0
     ids = {s.get("trajectory_id") for s in statuses} - {None}
     assert {"plan-0", "plan-1", "plan-2", "plan-3"} <= ids
     # each replan flown was timed from its message's arrival to its first setpoint
