@@ -56,6 +56,16 @@ def _reports(sender: SetpointSender, count: int, timeout: float = 5.0):
     return got
 
 
+def _not_sent(sender: SetpointSender, mavsdk: socket.socket, code: float,
+              quiet_s: float) -> None:
+    """The next report says not sent, for ``code``; nothing arrives for ``quiet_s``."""
+    (report,) = _reports(sender, 1)
+    assert report.sent_at is None and report.why == WHY[code]
+    mavsdk.settimeout(quiet_s)
+    with pytest.raises(TimeoutError):
+        mavsdk.recvfrom(4096)
+
+
 def test_a_setpoint_goes_out_at_its_deadline_stamped_when_it_went():
     # (the fixture is not used: this test checks the handshake as well)
     sender = SetpointSender.spawn(BOOT, (245, 194), (1, 1))
@@ -104,11 +114,7 @@ def test_a_setpoint_past_its_not_after_or_after_too_long_a_silence_is_dropped(li
     time.sleep(0.15)  # (the silence to be refused: real time must pass)
     at = time.monotonic()
     sender.put(at, at + 1.0, 0.1, 0.0, VALUES)  # 0.15 s since the last one went out > 0.1 s
-    (silent,) = _reports(sender, 1)
-    assert silent.sent_at is None and silent.why == WHY[SILENT]
-    mavsdk.settimeout(0.3)
-    with pytest.raises(TimeoutError):
-        mavsdk.recvfrom(4096)
+    _not_sent(sender, mavsdk, SILENT, 0.3)
 
 
 def test_cancel_drops_what_waits(link):
@@ -116,11 +122,7 @@ def test_cancel_drops_what_waits(link):
     at = time.monotonic() + 0.5
     sender.put(at, at + 1.0, math.inf, 0.0, VALUES)
     sender.cancel()
-    (report,) = _reports(sender, 1)
-    assert report.sent_at is None and report.why == WHY[CANCELLED]
-    mavsdk.settimeout(0.8)
-    with pytest.raises(TimeoutError):
-        mavsdk.recvfrom(4096)
+    _not_sent(sender, mavsdk, CANCELLED, 0.8)
 
 
 def test_it_ignores_sigterm_and_sigint_and_ends_when_the_service_does(link):
