@@ -96,6 +96,8 @@ def retime_free(inp: RetimeInput) -> RetimeResult:
         rounds += 1
         rnd = one_round(traj, tau, d1, d2, vlim, a_max, boundary, inp.smoothness, inp.solver,
                         more)
+        if inp.solver.keep_round:
+            found["last_round"] = rnd
         path = rnd.path
         if not path.moving:
             return fallback(DEGENERATE)

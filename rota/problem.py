@@ -106,6 +106,10 @@ class SolverSettings:
       its data (``DefaultSolver.update``) when the new problem has the same
       sparsity (a replan on the same grid, or a repeated solve), skipping the
       symbolic KKT work.
+
+    ``keep_round``: keep the last round of constraint generation (its problem,
+    bounds and greedy profile: arrays the size of the grid) in the result's
+    ``diagnostics.last_round``, for benchmarks that time the solver alone on it.
     """
 
     method: str = "fast"
@@ -118,6 +122,7 @@ class SolverSettings:
     equilibrate: bool = True
     presolve: bool = True
     reuse_symbolic: bool = False
+    keep_round: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

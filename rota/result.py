@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,6 +48,9 @@ class Diagnostics:
         jerk_steps, jerk_ratio, jerk_finer: with a jerk bound, the steps of the
             successive convexification, the worst jerk over its bound, and how much
             finer the grid was made (:mod:`rota.jerk`).
+        last_round: the last round of constraint generation as it came from the
+            solver (:class:`rota.rounds.Round`), kept only when
+            ``SolverSettings.keep_round`` asks for it.
     """
 
     intervals: tuple[tuple[float, float], ...] | list = ()
@@ -61,6 +65,7 @@ class Diagnostics:
     jerk_steps: int | None = None
     jerk_ratio: float | None = None
     jerk_finer: int | None = None
+    last_round: Any = None
 
 
 @dataclass(frozen=True)

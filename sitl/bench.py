@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import importlib
 import json
 import math
 import os
@@ -43,7 +42,6 @@ import statistics
 import time
 import tracemalloc
 from collections.abc import Callable
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -62,9 +60,6 @@ from rota.voxelmap import VoxelMap
 from sitl import bench_jerk
 from sitl.bench_machine import calibration_s, host_steal_s, machine, startup_costs
 from sitl.bench_peers import A_MAX, V_MAX, cvxpy_solve, run_copp, run_toppra
-
-# the module whose rounds are kept to time its solves (rota.optimal runs them)
-_optimal = importlib.import_module("rota.optimal")
 
 T = TypeVar("T")
 DATA = Path(__file__).resolve().parent / "data"
@@ -118,23 +113,6 @@ def objective(tau: np.ndarray, beta: np.ndarray, lam: float) -> float:
 
 
 # ------------------------------------------------------------------- ROTA runs
-@contextmanager
-def _keep_round():
-    """Keep the last round inside retime() (:func:`rota.rounds.one_round`)."""
-    acc: dict[str, Any] = {"round": None}
-    orig = _optimal.one_round
-
-    def kept(*args, **kwargs):
-        acc["round"] = orig(*args, **kwargs)
-        return acc["round"]
-
-    _optimal.one_round = kept
-    try:
-        yield acc
-    finally:
-        _optimal.one_round = orig
-
-
 def solver_alone(rnd: Any, settings: SolverSettings) -> float:
     """Seconds of the solver alone on a round's problem (tightened bounds, from the
     greedy profile, as inside the round), run again on its own: the fast solver
@@ -156,14 +134,15 @@ def run_rota(inp: RetimeInput, keep: dict | None = None) -> tuple[float, float, 
     ``keep``, also the solver alone on the last round's problem (:func:`solver_alone`,
     after the timed call) and that problem in ``keep["problem"]``."""
     inp = replace(inp, trajectory=inp.trajectory.fresh())
-    with _keep_round() as acc:
-        t0 = time.perf_counter()
-        res = retime(inp)
-        wall = time.perf_counter() - t0
+    inp = replace(inp, solver=replace(inp.solver, keep_round=True))
+    t0 = time.perf_counter()
+    res = retime(inp)
+    wall = time.perf_counter() - t0
     solver_s = float("nan")
     if keep is not None:
-        keep["problem"] = None if acc["round"] is None else acc["round"].problem
-        solver_s = solver_alone(acc["round"], inp.solver)
+        last = res.diagnostics.last_round
+        keep["problem"] = None if last is None else last.problem
+        solver_s = solver_alone(last, inp.solver)
     return wall, solver_s, res
 
 
