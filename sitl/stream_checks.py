@@ -90,15 +90,19 @@ def _gaps(t: np.ndarray, pauses: Sequence[tuple[float, float]], wall: np.ndarray
           host_steal: HostSteal, on_host: np.ndarray | None = None,
           ) -> tuple[np.ndarray, np.ndarray]:
     """Gaps of ``t`` net of what the host took within them, leaving out those that
-    span a pause (wall-clock intervals in which the sender was stopped on purpose);
-    and what the host took. ``on_host``: the times ``t`` on the host's monotonic
-    clock, where the host's takings are looked for (default ``wall``)."""
+    span a pause (wall-clock intervals in which the sender was stopped on purpose),
+    by arrival or by send time (a setpoint sent just before the service was stopped
+    may sit in its frozen MAVSDK's socket and arrive after the pause: the gap after
+    it, by send stamps, is still the pause's); and what the host took. ``on_host``:
+    the times ``t`` on the host's monotonic clock, where the host's takings are
+    looked for (default ``wall``)."""
     dt = np.diff(t)
     on_host = wall if on_host is None else on_host
     stolen = host_steal.excuse(dt, on_host[:-1], on_host[1:])
     keep = np.ones(len(dt), dtype=bool)
     for a, b in pauses:
         keep &= ~((wall[:-1] <= b) & (wall[1:] >= a))
+        keep &= ~((on_host[:-1] <= b) & (on_host[1:] >= a))
     return (dt - stolen)[keep], stolen[keep]
 
 

@@ -107,3 +107,18 @@ def test_a_gap_is_charged_on_the_senders_clock_when_the_receiver_was_held_up_too
     figures = check_stream(rec, 2.0, host_steal=steal_at(sent[99] + 0.105, 0.1))
     assert figures.host_steal_gaps == 1 and abs(figures.host_steal_s - 0.1) < 1e-9
     assert abs(figures.max_gap_s - 0.037) < 1e-9 and not figures.problems(), figures.summary()
+
+
+def test_a_gap_spanning_a_pause_by_send_stamps_is_the_pauses_even_if_it_arrived_after():
+    """The service frozen for 0.5 s: the setpoint sent just before the freeze sat in
+    its MAVSDK's socket and arrived after it. The 0.5 s between its stamp and the next
+    is the pause (left out); a gap elsewhere still counts."""
+    sent = stream_with_gap(0.5, at=101)
+    rec = record(sent)
+    rec["wall_time"][100] = sent[101] - 0.001  # (arrived with the resume)
+    pause = (sent[100] + 0.005, sent[101] - 0.002)
+    assert not check_stream(rec, 2.0, pauses=[pause]).problems()
+    late = stream_with_gap(0.5, at=101)
+    late[200:] += 0.2  # a real gap later on
+    assert check_stream(record(late), 2.0, pauses=[pause]).problems() == \
+        ["gap of 220 ms > 100 ms"]
