@@ -213,7 +213,7 @@ def serve(boot: float, source: tuple[int, int], target: tuple[int, int]) -> None
     """The sender process: read setpoints from stdin, send each at its deadline."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _raise_priority()
+    raise_priority()
     from pymavlink.dialects.v20 import common as mavlink2
 
     mav = mavlink2.MAVLink(None, srcSystem=source[0], srcComponent=source[1])
@@ -293,20 +293,27 @@ def shifted(values: tuple[float, ...] | list[float], dt: float) -> tuple[float, 
     return (*(values[i] + values[3 + i] * dt for i in range(3)), *values[3:])
 
 
-def _raise_priority() -> None:
-    """Real-time (SCHED_FIFO at :data:`RT_PRIORITY`) where the process may (root or
-    CAP_SYS_NICE): it then runs the moment its deadline comes, before any ordinary
-    work (it sleeps more than 99 % of the time; the kernel's real-time throttling
-    would still leave ordinary work 5 % of each CPU if it ever spun). Else
-    :data:`NICE_STEP` nice levels above the service, if it may; else at the service's."""
+def raise_priority(tid: int = 0) -> str:
+    """Real-time (SCHED_FIFO at :data:`RT_PRIORITY`) for the thread ``tid`` (0: the
+    calling process) where allowed (root, CAP_SYS_NICE, or ``LimitRTPRIO``): it then
+    runs the moment it wakes, before any ordinary work (the setpoint sender and the
+    stream's thread sleep most of each period; the kernel's real-time throttling would
+    still leave ordinary work 5 % of each CPU if one spun). Else :data:`NICE_STEP`
+    nice levels above its own, if allowed. Returns "" or why neither was allowed."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
-        return
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        return ""
     except (OSError, AttributeError):
         pass
-    with contextlib.suppress(OSError):
-        os.setpriority(os.PRIO_PROCESS, 0, max(os.getpriority(os.PRIO_PROCESS, 0) - NICE_STEP,
-                                               -20))
+    here = os.getpriority(os.PRIO_PROCESS, tid)
+    want = max(here - NICE_STEP, -20)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, want)
+        return ""
+    except OSError as exc:
+        return (f"at the service's priority (nice {here}): neither real-time (SCHED_FIFO "
+                f"{RT_PRIORITY}) nor nice {want} allowed ({exc.strerror}; grant "
+                "CAP_SYS_NICE, or LimitRTPRIO=1 as the shipped unit does)")
 
 
 def _stopped(stat: str) -> bool:

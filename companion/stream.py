@@ -42,7 +42,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import os
 import threading
 import time
 from collections import deque
@@ -67,7 +66,7 @@ from companion.plan import (
     brake_along,
 )
 from companion.reaction import Reactions
-from companion.sender import NICE_STEP
+from companion.sender import NICE_STEP, raise_priority
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -78,9 +77,9 @@ BRAKE_SHARE = 0.7
 LOSS_SHARE = 0.8
 #: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
 STEP_SLACK_M = 0.01
-#: The stream's thread runs this many nice levels above the service (needs
-#: CAP_SYS_NICE; without it, at the service's own priority, and status says so), as
-#: the setpoint sender does.
+#: The stream's thread runs real-time (SCHED_FIFO 1) where allowed, else this many nice
+#: levels above the service (needs CAP_SYS_NICE; without it, at the service's own
+#: priority, and status says so), as the setpoint sender does.
 STREAM_NICE_STEP = NICE_STEP
 #: A tick this late (s) is logged with the kernel's account of why
 #: (:mod:`companion.lateness`).
@@ -324,15 +323,12 @@ class SetpointStream:
             thread.join(1.0)  # it sees ``stop`` within one period
 
     def _raise_priority(self) -> None:
-        """This thread :data:`STREAM_NICE_STEP` nice levels above the service."""
-        here = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's (Linux: per thread)
-        want = max(here - STREAM_NICE_STEP, -20)
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), want)
-            self.priority = ""
-        except OSError as exc:
-            self.priority = (f"setpoint stream at the service's priority (nice {here}): "
-                             f"cannot set nice {want} ({exc.strerror}; grant CAP_SYS_NICE)")
+        """This thread real-time where allowed, else :data:`STREAM_NICE_STEP` nice levels
+        above the service (:func:`companion.sender.raise_priority`); status says if
+        neither was allowed."""
+        why = raise_priority(threading.get_native_id())
+        self.priority = f"setpoint stream {why}" if why else ""
+        if why:
             self._call(self.report.warn, self.priority)
 
     def _loop(self, stop: threading.Event, beat: Callable[[], None]) -> None:
