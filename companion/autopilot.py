@@ -356,8 +356,8 @@ class Autopilot:
         the last setpoint that went out (moved on by up to ``max_shift`` if it goes out
         late: :func:`companion.sender.shifted`): handed to the sender process (one pipe write,
         :mod:`companion.sender`). While the sender is dead and being restarted, sent
-        from here through MAVSDK's MAVLink-direct plugin instead (this thread then
-        sleeps until ``at``). True if handed over or sent."""
+        at once from here through MAVSDK's MAVLink-direct plugin instead (its position
+        moved to now). True if handed over or sent."""
         if self._direct is None:
             raise AutopilotError("not connected")
         p, v, a = enu_to_ned(p_enu), enu_to_ned(v_enu), enu_to_ned(a_enu)
@@ -372,11 +372,12 @@ class Autopilot:
 
     def _send_direct(self, values: tuple[float, ...], at: float, not_after: float,
                      max_shift: float) -> bool:
-        """The stand-in while the sender restarts: this thread waits for ``at`` and sends
-        through MAVSDK's MAVLink-direct plugin (not after ``not_after``)."""
-        time.sleep(max(0.0, at - time.monotonic()))
+        """The stand-in while the sender restarts: sends at once through MAVSDK's
+        MAVLink-direct plugin (not after ``not_after``), the position moved along its
+        velocity to now (the setpoint was computed for ``at``, up to a period ahead).
+        It never waits: the stream's thread calls it holding the stream's lock."""
         now = time.monotonic()
-        values = shifted(values, min(now - at, max_shift))
+        values = shifted(values, max(-max_shift, min(now - at, max_shift)))
         keys = ("x", "y", "z", "vx", "vy", "vz", "afx", "afy", "afz", "yaw")
         fields = {"time_boot_ms": int(round((now - self._boot) * 1e3)) & 0xFFFFFFFF,
                   "target_system": self._target[0], "target_component": self._target[1],

@@ -286,9 +286,11 @@ def shifted(values: tuple[float, ...] | list[float], dt: float) -> tuple[float, 
     says when), not where it was (a 15 ms delay at 2 m/s is 3 cm, and the next
     setpoint, on time, would seem to leap). Velocity and acceleration are left as
     computed (checked against the limits; the plan's change over ``dt`` is under a
-    millimetre of position at 3 m/s^2). ``dt`` <= 0: unchanged. The stream bounds
-    ``dt`` by one period (at 2 m/s and 50 Hz, 4 cm from the position it checked)."""
-    if not dt > 0:
+    millimetre of position at 3 m/s^2). A negative ``dt`` moves it back (a setpoint
+    sent before its time: the stream's own stand-in while the sender restarts); 0 or
+    NaN: unchanged. The caller bounds ``dt`` by one period (at 2 m/s and 50 Hz, 4 cm
+    from the position the stream checked)."""
+    if not (dt > 0 or dt < 0):
         return tuple(values)
     return (*(values[i] + values[3 + i] * dt for i in range(3)), *values[3:])
 

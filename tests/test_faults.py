@@ -48,9 +48,6 @@ def assert_stream_ok(flight: Flight, report, window=None) -> None:
     # the service's own account of its late ticks (the kernel's figures), to tell why
     late = [ln for ln in getattr(flight, "log", "").splitlines()
             if "setpoint stream late" in ln or "stalled for" in ln]
-    if figures.problems():
-        np.savez("/work/exp/dbg/sp.npz", **report.setpoints)
-        open("/work/exp/dbg/log.txt", "w").write(getattr(flight, "log", ""))
     assert not figures.problems(), "\n".join([figures.summary(), *late[-10:]])
     assert not report.collisions
 

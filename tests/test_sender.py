@@ -237,3 +237,13 @@ def test_it_runs_real_time_where_it_may_else_above_the_service():
             assert os.sched_getparam(pid).sched_priority == RT_PRIORITY
     finally:
         sender.close()
+
+
+def test_shifted_moves_a_position_along_its_velocity_either_way_and_nothing_else():
+    from companion.sender import shifted
+
+    v = (1.0, 2.0, 3.0, 2.0, -1.0, 0.5, 0.3, 0.0, 0.0, 0.7)
+    assert shifted(v, 0.01)[:3] == pytest.approx((1.02, 1.99, 3.005))
+    assert shifted(v, -0.01)[:3] == pytest.approx((0.98, 2.01, 2.995))  # sent early
+    assert shifted(v, 0.01)[3:] == v[3:] and shifted(v, 0.0) == v
+    assert shifted(v, float("nan")) == v
