@@ -6,10 +6,10 @@ Why a process. The stream's thread (:mod:`companion.stream`) needs the GIL to wa
 up and to send. On a busy companion computer the thread holding the GIL (the event
 loop, a Zenoh or MAVSDK callback) can itself be waiting for a CPU, and then the
 setpoint waits with it: the kernel gives no priority to a thread for the lock it
-holds. Measured in the project's CI (two test workers on two cores), that put the
-99th percentile of the stream's gaps 1-13 ms over its 25 ms budget in two runs of
-three. This process holds nothing but the next setpoints: it sleeps to a deadline,
-checks it and sends.
+holds. In the project's CI (two test workers on two cores) that put the 99th
+percentile of the stream's gaps at 26 ms against its 25 ms budget, and beside two
+busy loops at 33 ms. This process holds nothing but the next setpoints: it sleeps to
+a deadline, checks it and sends.
 
 How. The stream computes each setpoint one period ahead, for the deadline it is to
 go out at, and writes it here through a pipe (:meth:`SetpointSender.put`, one
@@ -31,9 +31,9 @@ What it promises, whatever the service does meanwhile:
 * nothing is sent while the service process is stopped (SIGSTOP, a debugger): its
   MAVSDK would hold the datagram and forward it to PX4 only when the service runs
   again, after PX4's offboard-loss timeout perhaps (the state is read from
-  ``/proc/<service>/stat`` just before each send; a stop landing in the
-  microseconds between that read and MAVSDK's read of the datagram still lets
-  one setpoint out late);
+  ``/proc/<service>/stat`` just before each send; a stop landing between that read
+  and MAVSDK's read of the datagram, microseconds on a quiet machine and up to
+  milliseconds on a busy one, still lets one setpoint out late);
 * it ends when the service's end of the pipe closes (the service exited or died),
   and ignores SIGINT and SIGTERM, which the service handles for it.
 
@@ -56,9 +56,9 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-#: One setpoint in the pipe: deadline, not_after, max_silence (monotonic s), position,
-#: max_shift (s), velocity, acceleration (NED, 9 values), yaw (rad). A NaN deadline
-#: cancels.
+#: One setpoint in the pipe: deadline, not_after, max_silence, max_shift (s; the first
+#: two on the monotonic clock), position, velocity, acceleration (NED, 9 values), yaw
+#: (rad). A NaN deadline cancels.
 RECORD = struct.Struct("<14d")
 #: One report back: the setpoint's deadline, and when it went out (>= 0) or a code < 0.
 REPORT = struct.Struct("<dd")
