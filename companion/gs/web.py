@@ -361,7 +361,10 @@ def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
           f"Ctrl-C stops. Open:\n{page_url(server, host)}", flush=True)
     try:
         while True:
-            time.sleep(3600)
+            # short sleeps: a Ctrl-C the kernel hands to another thread (Zenoh's, the
+            # server's) only sets Python's flag, and the handler runs in this thread
+            # when its sleep ends (an hour-long one kept a stopped rota-gs web running)
+            time.sleep(0.2)
     except KeyboardInterrupt:
         pass
     finally:
