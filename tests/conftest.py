@@ -18,3 +18,22 @@ def pytest_collection_modifyitems(config, items):
         backend = getattr(getattr(item, "callspec", None), "params", {}).get("flight")
         if backend is not None:
             item.add_marker(pytest.mark.xdist_group(f"tier-{backend}"))
+
+
+@pytest.fixture(autouse=True)
+def _sigint_as_a_terminal_gives_it():
+    """Every test starts with Ctrl-C as a user's terminal gives it: Python's default
+    handler, SIGINT not blocked in this thread. Processes a test starts inherit an
+    ignored or blocked SIGINT from it, and then no Ctrl-C stops them: if an earlier
+    test (or a library it loaded) left SIGINT so, it is put back, and said."""
+    import signal
+    import sys
+
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    handler = signal.getsignal(signal.SIGINT)
+    if blocked or handler is not signal.default_int_handler:
+        print(f"conftest: SIGINT was {'blocked' if blocked else 'unblocked'} with handler "
+              f"{handler!r} before this test; restored", file=sys.stderr)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
