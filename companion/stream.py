@@ -8,8 +8,8 @@ here decodes, solves or waits on the network: one tick is a few array
 operations and one pipe write.
 
 It runs in a thread of its own, not on the event loop, at a higher CPU priority
-than the rest of the service when it may (:data:`STREAM_NICE_STEP`): a tick then
-waits for no callback of the loop (a status being built, a reply, telemetry),
+than the rest of the service when it may (:func:`companion.sender.raise_priority`):
+a tick then waits for no callback of the loop (a status being built, a reply, telemetry),
 only, at worst, for Python's GIL. That wait no longer delays the vehicle: each
 setpoint is computed one period ahead and put on the wire at its deadline by the
 setpoint sender, a process of its own that needs no GIL of the service's
@@ -66,7 +66,7 @@ from companion.plan import (
     brake_along,
 )
 from companion.reaction import Reactions
-from companion.sender import NICE_STEP, raise_priority
+from companion.sender import raise_priority
 from companion.status import Reporter
 
 log = logging.getLogger("rota.companion")
@@ -77,10 +77,6 @@ BRAKE_SHARE = 0.7
 LOSS_SHARE = 0.8
 #: Slack (m) on the step between consecutive setpoints (float rounding, brake ends).
 STEP_SLACK_M = 0.01
-#: The stream's thread runs real-time (SCHED_FIFO 1) where allowed, else this many nice
-#: levels above the service (needs CAP_SYS_NICE; without it, at the service's own
-#: priority, and status says so), as the setpoint sender does.
-STREAM_NICE_STEP = NICE_STEP
 #: A tick this late (s) is logged with the kernel's account of why
 #: (:mod:`companion.lateness`).
 LATE_TICK_S = 0.06
@@ -323,9 +319,9 @@ class SetpointStream:
             thread.join(1.0)  # it sees ``stop`` within one period
 
     def _raise_priority(self) -> None:
-        """This thread real-time where allowed, else :data:`STREAM_NICE_STEP` nice levels
-        above the service (:func:`companion.sender.raise_priority`); status says if
-        neither was allowed."""
+        """This thread real-time where allowed, else a few nice levels above the
+        service (:func:`companion.sender.raise_priority`); status says if neither was
+        allowed."""
         why = raise_priority(threading.get_native_id())
         self.priority = f"setpoint stream {why}" if why else ""
         if why:
