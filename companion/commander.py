@@ -287,7 +287,7 @@ class Commander:
                 self.state = self._derive_state()
                 return
             if self.state == State.OFFBOARD and tel.position is not None:
-                error = self.stream.tracking_error(tel.position, time.monotonic())
+                error = self.stream.tracking_error(tel.position, tel.position_time)
                 if error is not None:
                     self.track_errors.append(error)
                     err = float(np.linalg.norm(error))

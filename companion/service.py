@@ -424,9 +424,9 @@ class Service:
                                 if status["trajectory_id"] else ""))
 
     def telemetry(self) -> dict[str, Any]:
-        tel, now = self.autopilot.telemetry, time.monotonic()
+        tel = self.autopilot.telemetry
         cmd = self.stream.last_sent if self.stream.streaming else None
-        error = (self.stream.tracking_error(tel.position, now)
+        error = (self.stream.tracking_error(tel.position, tel.position_time)
                  if cmd is not None and tel.position is not None else None)
         err = None if error is None else float(np.linalg.norm(error))
         return msgs.envelope(

@@ -117,14 +117,17 @@ class SentLog:
         idx = self._last(len(self))
         return zip(self._t[idx].tolist(), self._p[idx].copy(), strict=True)
 
-    def since(self, t0: float, most: int = 512) -> np.ndarray:
-        """Positions sent at ``t0`` or later (of the newest ``most``); the newest one
-        if none."""
+    def between(self, t0: float, t1: float, most: int = 512) -> np.ndarray:
+        """Positions sent from ``t0`` to ``t1`` (of the newest ``most``); else the newest
+        one sent by ``t1``, else the oldest kept."""
         idx = self._last(most)
         if not len(idx):
             return np.zeros((0, 3))
-        keep = idx[self._t[idx] >= t0]
-        return self._p[keep if len(keep) else idx[-1:]]
+        t = self._t[idx]
+        keep = idx[(t >= t0) & (t <= t1)]
+        if not len(keep):
+            keep = idx[t <= t1][-1:] if np.any(t <= t1) else idx[:1]
+        return self._p[keep]
 
 
 class SetpointStream:
@@ -410,12 +413,15 @@ class SetpointStream:
         elif self.halted is None or not isinstance(self.source, Hold):
             self.halt(f"{what} (budget {self._cfg().stream.stall_budget_s} s)", now)
 
-    def tracking_error(self, position: np.ndarray, now: float) -> np.ndarray | None:
-        """The reported ``position`` minus the nearest of the setpoints sent in the
-        last ``safety.tracking_lag_s`` (PX4's position loop lags its setpoint by up to
-        half a second at 2-3 m/s: a lag is no divergence). None if none was sent."""
+    def tracking_error(self, position: np.ndarray, at: float) -> np.ndarray | None:
+        """The reported ``position`` (received at monotonic ``at``) minus the nearest of
+        the setpoints sent in the ``safety.tracking_lag_s`` before ``at`` (PX4's position
+        loop lags its setpoint by up to half a second at 2-3 m/s: a lag is no divergence;
+        a setpoint sent after the position was measured is no measure of it, and on a busy
+        computer the position may be read a while after it arrived). None if none was
+        sent."""
         with self.lock:
-            recent = self.sent.since(now - self._cfg().safety.tracking_lag_s)
+            recent = self.sent.between(at - self._cfg().safety.tracking_lag_s, at)
         if not len(recent):
             return None
         d = position - recent

@@ -216,8 +216,10 @@ async def plan_async(world: World, **kwargs: Any) -> BSplineTrajectory:
     return await in_worker(plan, world, **kwargs)
 
 
-#: Times :func:`fly_to_goal` plans a replan that the service refused.
-REPLAN_ATTEMPTS = 3
+#: Times :func:`fly_to_goal` plans a replan that the service refused (each takes up to a
+#: second of CPU; on a busy computer the vehicle turns further meanwhile, and three in a
+#: row were seen refused).
+REPLAN_ATTEMPTS = 10
 
 
 async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: float,

@@ -208,3 +208,31 @@ def test_a_tracking_error_over_the_limit_brakes_along_the_path():
         assert isinstance(c.stream.source, Brake) and "tracking error" in c.stream.source.reason
 
     asyncio.run(main())
+
+
+def test_the_tracking_error_is_measured_against_the_setpoints_sent_before_the_position():
+    """A position is compared with the setpoints sent in the ``tracking_lag_s`` before it
+    arrived, not with later ones it could not yet follow: on a busy computer it is read
+    a while after it arrived (until ``link_timeout_s`` the link counts as up)."""
+    async def main():
+        c, ap, _ = await _flying()
+        t = np.linspace(0.0, 10.0, 11)
+        line = SampledTrajectory(t=t, p=np.column_stack([t, 0 * t, 0 * t + 2.0]))
+        now = time.monotonic()
+        c.stream.source = Plan("line", retime(RetimeInput(trajectory=line,
+                                                          limits=Limits(2.0, 2.0))), now)
+        speed, period = 10.0, 0.02  # what was sent: x at 10 m/s for the last 4 s
+        for k in range(201):
+            c.stream.sent.append(now - 4.0 + k * period, [speed * k * period, 0.0, 2.0])
+        c.stream.last_sent, c.stream.last_send_time = c.stream.commanded(now), now
+        age = 1.2  # s: over the lag, under the link timeout (on a setpoint's send time)
+        assert CFG.safety.tracking_lag_s < age < CFG.mavlink.link_timeout_s
+        assert (age - CFG.safety.tracking_lag_s) * speed > CFG.safety.max_tracking_error_m
+        # on track when it arrived: (age - lag) x speed behind the setpoints of the last lag
+        ap.telemetry.position = np.array([speed * (4.0 - age), 0.0, 2.0])
+        ap.telemetry.position_time = now - age
+        c.check()
+        assert float(np.linalg.norm(c.track_errors[-1])) < 1e-9
+        assert isinstance(c.stream.source, Plan)
+
+    asyncio.run(main())
