@@ -20,12 +20,13 @@ import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from companion.entry import package_version
+
 if TYPE_CHECKING:  # imported where used: the CLI starts (and the demo speaks) sooner
-    from companion.config import Config
+    from companion.settings.config import Config
 
 _SYSLOG = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
            logging.CRITICAL: 2}
@@ -73,7 +74,7 @@ _MAVLINK_URL = re.compile(r"^((udp|udpin|udpout|tcp|tcpin|tcpout)://[^/:\s]*:\d{
 def check_directory(path: str, setting: str) -> None:
     """``path`` is a directory this user can write, or can be created (its nearest
     existing parent is writable); a ConfigError naming ``setting`` otherwise."""
-    from companion.config import ConfigError
+    from companion.settings.config import ConfigError
 
     target = Path(path).absolute()
     probe = target
@@ -103,7 +104,7 @@ def check_environment(cfg: Config) -> None:
     """Checks beyond the file's own: the Zenoh configuration file loads, the
     MAVLink URL is one MAVSDK understands, the state and record directories can be
     written by this user. Raises ConfigError naming the setting."""
-    from companion.config import ConfigError
+    from companion.settings.config import ConfigError
 
     if not _MAVLINK_URL.match(cfg.mavlink.url):
         raise ConfigError(f"[mavlink] url: {cfg.mavlink.url!r} is not a MAVSDK connection URL "
@@ -117,14 +118,14 @@ def check_environment(cfg: Config) -> None:
     if cfg.record.enabled:
         where = "[record] dir" if cfg.record.dir else "[record] dir (<state_dir>/records)"
         check_directory(cfg.record.dir or os.path.join(cfg.service.state_dir, "records"), where)
-    from companion.security import check_exposure, zenoh_config
+    from companion.network.security import check_exposure, zenoh_config
 
     for problem in check_exposure(cfg, zenoh_config(cfg)):  # refuses unless insecure
         print(f"rota-companion: warning: INSECURE: {problem}", file=sys.stderr)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from companion.config import load
+    from companion.settings.config import load
 
     cfg = load(args.config)
     check_environment(cfg)
@@ -134,7 +135,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if access_control(cfg):  # its denials are in Zenoh's own log only: into ours
         import zenoh
 
-        from companion import zenoh_log
+        from companion.network import zenoh_log
 
         zenoh_log.forward(zenoh)
     setup_logging(cfg.service.log_level)
@@ -154,7 +155,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def access_control(cfg: Config) -> bool:
     """Whether the Zenoh configuration turns access control on."""
-    from companion.security import zenoh_config
+    from companion.network.security import zenoh_config
 
     try:
         return json.loads(zenoh_config(cfg).get_json("access_control/enabled")) is True
@@ -177,7 +178,7 @@ def _positive(args: argparse.Namespace, *names: str) -> None:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from companion.config import load
+    from companion.settings.config import load
 
     cfg = load(args.config)
     check_environment(cfg)
@@ -187,7 +188,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
-    from companion.fleet import Fleet, FleetError, FleetNameError, make_fleet
+    from companion.network.fleet import Fleet, FleetError, FleetNameError, make_fleet
 
     if any("=" not in h for h in args.host):
         raise UsageError("--host takes VEHICLE=HOST, e.g. --host drone1=10.0.0.11")
@@ -206,13 +207,6 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     print(f"fleet in {args.dir}: keep ca/ca.key offline; copy each member's directory to its "
           "computer (docs/security.md)")
     return 0
-
-
-def package_version() -> str:
-    try:
-        return version("rota-companion")
-    except PackageNotFoundError:  # pragma: no cover - a source tree
-        return "unknown"
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -263,7 +257,7 @@ def one_line(prog: str, fn: Callable[[], int],
 
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
-    from companion.config import ConfigError
+    from companion.settings.config import ConfigError
 
     return one_line(f"rota-companion {args.command}", lambda: args.func(args),
                     [(ConfigError, 2, lambda exc: f"configuration error: {exc}")])

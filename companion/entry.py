@@ -11,8 +11,19 @@ from __future__ import annotations
 import signal
 import sys
 from importlib import import_module
+from importlib.metadata import PackageNotFoundError, version
 
 INTERRUPTED = 130
+
+
+def package_version() -> str:
+    """rota-companion's version as installed ("unknown" when run from a source tree),
+    for every CLI's ``--version`` (the library's own CLI has its copy: ``rota`` cannot
+    import the service)."""
+    try:
+        return version("rota-companion")
+    except PackageNotFoundError:  # pragma: no cover - a source tree
+        return "unknown"
 
 
 def run(prog: str, module: str) -> int:

@@ -8,7 +8,7 @@ allocator would otherwise stay in the service's resident memory for good.
 * :func:`trim`: ``malloc_trim(0)`` returns the free pages of every arena (Zenoh's
   receiving threads each have one) to the system. It takes each arena's lock in
   turn, so the service calls it from a thread, at most every few seconds, and
-  only after a large input (:class:`companion.inputs.Inputs`).
+  only after a large input (:class:`companion.network.inputs.Inputs`).
 
 Measured with ``/proc`` (``sitl.footprint``): see ``docs/service.md``.
 On a C library without these calls (musl, macOS) both do nothing.

@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import Config
+from companion.flight.reaction import Timing
 from companion.frames import SIGN, SWAP, ned_to_enu
-from companion.reaction import Timing
+from companion.protocol import COMMANDS, CONFIG, REPLY, STATUS, TELEMETRY  # noqa: F401 - msgs.X
+from companion.settings.config import Config
 from rota.errors import InputError
 from rota.schema import VERSION, TrajectoryMessage, trajectory_from_dict
 from rota.trajectory import (
@@ -31,11 +32,6 @@ from rota.trajectory import (
 )
 from rota.voxelmap import VoxelMap
 
-STATUS = "rota/status"
-TELEMETRY = "rota/telemetry"
-REPLY = "rota/reply"
-CONFIG = "rota/config"
-COMMANDS = ("arm", "disarm", "takeoff", "start", "hold", "land", "abort")
 MAX_DURATION_S = 3600.0
 MAX_ID_CHARS = 128
 #: JSON values a trajectory message may hold per trajectory point (p, v, a, t and

@@ -2,14 +2,14 @@
 
 Thin glue over the modules beside this one:
 
-* :mod:`companion.inputs`: trajectories, maps, commands and configuration from Zenoh,
+* :mod:`companion.network.inputs`: trajectories, maps, commands and configuration from Zenoh,
   with byte caps and rate limits;
-* :mod:`companion.decoder`: their decoding and validation (:mod:`companion.messages`)
+* :mod:`companion.network.decoder`: their decoding and validation (:mod:`companion.messages`)
   in worker processes, never on the event loop;
-* :mod:`companion.replanner` and :mod:`companion.retimer`: stitching and ROTA in a
+* :mod:`companion.flight.replanner` and :mod:`companion.flight.retimer`: stitching and ROTA in a
   worker process;
-* :mod:`companion.stream`: the setpoint stream to PX4 (:mod:`companion.autopilot`);
-* :mod:`companion.commander`: commands and the state, from PX4's telemetry;
+* :mod:`companion.flight.stream`: the setpoint stream to PX4 (:mod:`companion.flight.autopilot`);
+* :mod:`companion.flight.commander`: commands and the state, from PX4's telemetry;
 * :mod:`companion.supervisor`: the tasks and worker processes, restarted when one
   dies; systemd;
 * :mod:`companion.status`: status and telemetry out.
@@ -36,25 +36,25 @@ import zenoh
 
 from companion import memory
 from companion import messages as msgs
-from companion.autopilot import Autopilot, AutopilotError
-from companion.commander import Commander, State
-from companion.config import Config, ConfigError, short
-from companion.decoder import DecodeFn, Decoder
-from companion.estimator import UncertaintyEstimator
-from companion.inputs import Handlers, Inputs
-from companion.learning import Learning
-from companion.outbox import Outbox
-from companion.plan import Brake, Hold, Plan
-from companion.reconfigure import Reconfigure
-from companion.record_process import recorder_for
-from companion.replanner import Replanner
-from companion.retimer import Retimer
+from companion.flight.autopilot import Autopilot, AutopilotError
+from companion.flight.commander import Commander, State
+from companion.flight.plan import Brake, Hold, Plan
+from companion.flight.replanner import Replanner
+from companion.flight.retimer import Retimer
+from companion.flight.stream import SetpointStream
+from companion.network.decoder import Decoder
+from companion.network.inputs import Handlers, Inputs
+from companion.network.outbox import Outbox
+from companion.network.security import check_exposure, zenoh_config
+from companion.recording.record_process import recorder_for
 from companion.ros2.link import Ros2Link
-from companion.security import check_exposure, zenoh_config
-from companion.status import Publisher, Reporter
-from companion.stream import SetpointStream
+from companion.settings.config import Config, ConfigError, short
+from companion.settings.reconfigure import Reconfigure
+from companion.status import Publisher, Reporter, Retimed
 from companion.supervisor import Notifier, Supervisor
-from companion.uncertainty import ConfiguredUncertainty, UncertaintySource
+from companion.uncertainty.estimator import UncertaintyEstimator
+from companion.uncertainty.learning import Learning
+from companion.uncertainty.source import ConfiguredUncertainty, UncertaintySource
 from companion.worker import Worker
 from rota.voxelmap import VoxelMap
 
@@ -85,18 +85,22 @@ class Service:
         self.report = Reporter()
         self.recorder = recorder_for(cfg.record, cfg.service.state_dir, cfg.service.vehicle_id,
                                      lambda message: self.report.error("record", message))
-        self.autopilot = Autopilot(cfg.mavlink.url)
-        self.autopilot.on_status_text = self._px4_text
-        self.autopilot.on_error = lambda text: self.report.error("mavlink", text)
+        self.autopilot = Autopilot(cfg.mavlink.url,
+                                   on_error=lambda text: self.report.error("mavlink", text),
+                                   on_status_text=self._px4_text)
         self.retimer = Retimer()
+        self.retimed = Retimed(self.recorder)  # where re-timed plans go
         self.decoder = Decoder(lambda: self.cfg)
-        self.stream = SetpointStream(lambda: self.cfg, self.autopilot, self.report)
-        self.stream.record = self.recorder.put
+        # (the stream, the replanner and the commander answer each other: the two calls
+        # back into the commander, built last, are bound here, where all three are known)
+        self.stream = SetpointStream(lambda: self.cfg, self.autopilot, self.report,
+                                     record=self.recorder.put,
+                                     on_halt=lambda why, ended: self.commander.halted(why, ended))
         self.replanner = Replanner(lambda: self.cfg, self.retimer, self.stream,
-                                   lambda: self.uncertainty, self.report, self._put_retimed)
+                                   lambda: self.uncertainty, self.report, self.retimed.put,
+                                   flying=lambda: self.commander.flying())
         self.commander = Commander(lambda: self.cfg, self.autopilot, self.stream,
                                    self.replanner, self.report)
-        self.replanner.flying = self.commander.flying
         self.learning = Learning(self.estimator, self.autopilot, self.commander.flying,
                                  lambda: list(self.commander.track_errors),
                                  lambda: self.cfg.mavlink.link_timeout_s, self.report,
@@ -271,11 +275,11 @@ class Service:
         self.inputs = Inputs(s, lambda: self.cfg, asyncio.get_running_loop(), Handlers(
             trajectory=self._on_trajectory, map=self._on_map, command=self._on_command,
             config=self._on_config, estimator=self._on_estimator), self.decoder, self.report,
-            self.outbox.send)
-        self.inputs.record = self._record_input
+            self.outbox.send, record=self._record_input)
         if self.cfg.ros2.enabled:
-            self.ros2 = Ros2Link(s, self.cfg.ros2, self._ros2_put, self.outbox.send,
+            self.ros2 = Ros2Link(s, self.cfg.ros2, self.inputs.put_ros2, self.outbox.send,
                                  warn=self.report.warn)
+        self.retimed.open(self.publisher, self.ros2)
 
     @staticmethod
     def _source_info(s: zenoh.Session):  # noqa: ANN205
@@ -283,16 +287,6 @@ class Service:
         status and telemetry from any other session: docs/security.md)."""
         sn = itertools.count(1)
         return lambda: zenoh.SourceInfo(s.id, next(sn))
-
-    def _ros2_put(self, kind: str, decode: DecodeFn, payload: bytes) -> None:
-        """A ROS message, on Zenoh's thread: the inputs' byte cap and rate limit, then
-        the decoding worker, as the service's own trajectory and map inputs."""
-        what = "map" if kind == "pointcloud" else "trajectory"
-        i = self.cfg.inputs
-        cap, rate = (i.max_map_bytes, i.max_maps_per_s) if what == "map" else \
-            (i.max_trajectory_bytes, i.max_messages_per_s)
-        if self.inputs.admit(f"ros2 {kind}", len(payload), cap, rate):
-            self.inputs.deliver(what, payload, decode)
 
     def _record_input(self, channel: str, payload: Any) -> None:
         """Puts as received. A ROS message (CDR: its encapsulation header begins with a
@@ -310,16 +304,6 @@ class Service:
             return obj
 
         return made
-
-    def _put_retimed(self, payload: bytes, ros2: bytes = b"", view: Any = None) -> None:
-        """A re-time's result, as JSON and (built in the worker) as a ROS 2 message and
-        the plan's Foxglove view (:class:`companion.foxglove.PlanView`)."""
-        self.recorder.put("retimed", payload)
-        if view is not None:
-            self.recorder.show("plan", view)
-        self.publisher.put_bytes("retimed", payload)
-        if self.ros2 is not None and ros2:
-            self.ros2.put("retimed", ros2)
 
     def _on_trajectory(self, incoming: msgs.Incoming) -> None:
         self.replanner.offer(incoming)  # (a refusal raises: the inputs report it, with the sender)

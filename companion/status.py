@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 from companion import messages as msgs
-from companion.outbox import Send, send_now
+from companion.network.outbox import Send, send_now
 
 log = logging.getLogger("rota.companion")
 
@@ -173,3 +173,28 @@ class Publisher:
             k += 1
             if k % status_every == 0:
                 self.publish_status()
+
+
+class Retimed:
+    """Where each re-timed plan goes (the replanner hands it here): the flight record
+    at once; Zenoh and ROS 2 from the moment they are open (:meth:`open`)."""
+
+    def __init__(self, recorder: Any) -> None:
+        self._recorder = recorder
+        self._publisher: Publisher | None = None
+        self._ros2: Any = None
+
+    def open(self, publisher: Publisher, ros2: Any = None) -> None:
+        """Zenoh is up: publish on ``publisher`` (and ``ros2``'s link, if any) too."""
+        self._publisher, self._ros2 = publisher, ros2
+
+    def put(self, payload: bytes, ros2: bytes = b"", view: Any = None) -> None:
+        """A re-time's result as JSON and (built in the worker) as a ROS 2 message and
+        the plan's Foxglove view (:class:`companion.recording.foxglove.PlanView`)."""
+        self._recorder.put("retimed", payload)
+        if view is not None:
+            self._recorder.show("plan", view)
+        if self._publisher is not None:
+            self._publisher.put_bytes("retimed", payload)
+        if self._ros2 is not None and ros2:
+            self._ros2.put("retimed", ros2)

@@ -354,6 +354,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def package_version() -> str:
+    """(companion.entry has the same for the other CLIs: the library cannot import it)"""
     try:
         return version("rota-companion")
     except PackageNotFoundError:  # pragma: no cover - a source tree

@@ -26,7 +26,7 @@ Random numbers: vehicle ``i`` draws its noise from ``numpy.random.default_rng(se
 exactly the order :class:`~sitl.estimation.PositionErrorModel` does (its initial draws, then
 ``draws_per_step`` per physics step), in blocks (block and one-at-a-time draws give the same
 stream). Two vehicles with the same seed therefore see identical noise draws, and a vehicle
-reproduces ``SimVehicle(seed=s)`` started in the same state (tests/test_batch.py).
+reproduces ``SimVehicle(seed=s)`` started in the same state (tests/sitl/test_batch.py).
 
 Scope: OFFBOARD flight with full setpoints (position, velocity and acceleration feed-forward
 all set); no commander (modes, failsafes, landing), no yaw (it has no effect on translation),

@@ -5,7 +5,7 @@ plot for docs/sitl.md.
 
 :func:`compare` computes everything :mod:`sitl.calibration` measures, for PX4 and for the
 vehicle over a few noise seeds (the vehicle's figures are the means over the seeds);
-tests/test_sitl_calibration.py checks them against stated tolerances.
+tests/sitl/test_sitl_calibration.py checks them against stated tolerances.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
+from companion.entry import package_version
 from rota.errors import InputError
 from sitl.estimation import EstimationErrorParams
 from sitl.vehicle import DEFAULT_COMPANION_PORT, SimVehicle, VehicleParams
@@ -49,7 +49,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog="\n\n".join(doc[1:]).strip(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     ap.add_argument("--world", default="none", help="world name from sitl.world, or 'none'")
     ap.add_argument("--seed", type=int, default=0, help="seed of the world and estimation error")
     ap.add_argument(
@@ -68,12 +68,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--of-loss-t", type=float, default=1.0, help="COM_OF_LOSS_T (s)")
     return ap
 
-
-def _version() -> str:
-    try:
-        return version("rota-companion")
-    except PackageNotFoundError:  # pragma: no cover - a source tree
-        return "unknown"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

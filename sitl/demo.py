@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import Config, from_dict
 from companion.frames import ned_to_enu
 from companion.gs import GroundStation, replay
 from companion.service import Service
+from companion.settings.config import Config, from_dict
 from rota.schema import TrajectoryMessage, trajectory_to_dict
 from rota.trajectory import BSplineTrajectory
 from rota.voxelmap import VoxelMap

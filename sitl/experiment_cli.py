@@ -17,9 +17,9 @@ import argparse
 import shlex
 import sys
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 
 from companion.cli import one_line
+from companion.entry import package_version
 from rota.chance import DEFAULT_MEMORY_S
 from sitl.bench import add_bench_parser
 from sitl.entry import FLIGHTS
@@ -86,11 +86,7 @@ def _parser() -> argparse.ArgumentParser:
                                  "and flights.",
                                  epilog="\n\n".join(doc[1:]).strip(),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    try:
-        ver = version("rota-companion")
-    except PackageNotFoundError:  # pragma: no cover - a source tree
-        ver = "unknown"
-    ap.add_argument("--version", action="version", version=f"%(prog)s {ver}")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = ap.add_subparsers(dest="group", required=True)
     add_flight_commands(sub)  # (run by sitl.flights_cli: the entry sends them there)
     add_bench_parser(sub)

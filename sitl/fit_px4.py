@@ -7,11 +7,11 @@ the lag along the path is forgiven (a vehicle behind schedule is where the path 
 ago, which is collision-free), and the estimate's own error is included (the vehicle flies on
 its estimate, so the truth is off by both). The deviation is measured as the service measures
 its tracking error (the nearest point of the path commanded in the last second,
-:func:`companion.estimator_replay.path_deviation`), on the ground truth, per horizontal axis.
+:func:`sitl.estimator_replay.path_deviation`), on the ground truth, per horizontal axis.
 
-The fit is the estimator's own (:mod:`companion.estimator`, filterpy Kalman filters per memory
-time) with a flat prior and no evidence rule: the maximum-likelihood line and memory time. Its
-spread: the same fit on each quarter of every flight. The floor: the RMS per axis while
+The fit is the estimator's own (:mod:`companion.uncertainty.estimator`, filterpy Kalman filters per
+memory time) with a flat prior and no evidence rule: the maximum-likelihood line and memory
+time. Its spread: the same fit on each quarter of every flight. The floor: the RMS per axis while
 hovering (``06_hover_noise``).
 
 Usage: ``python -m sitl.fit_px4 [DIR]`` prints the markdown that ``docs/estimator.md`` quotes.
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.estimator import EstimatorSettings
-from companion.estimator_replay import Flight, read, replay
+from companion.uncertainty.estimator import EstimatorSettings
 from rota.chance import UncertaintyModel
+from sitl.estimator_replay import Flight, read, replay
 
 DATA = Path("/work/shared/data/px4-sih")
 #: The tracking flight (lines and circles at 1-3 m/s): paths a planner sends. The step

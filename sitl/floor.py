@@ -1,7 +1,7 @@
 """The floor of the footprint: the least a Python offboard companion on MAVSDK costs.
 
 A process that does only what the setpoint path must: the service's own
-:class:`companion.autopilot.Autopilot` connected to a vehicle (the same telemetry at
+:class:`companion.flight.autopilot.Autopilot` connected to a vehicle (the same telemetry at
 the same rates), sending one setpoint at the stream's 50 Hz on absolute deadlines, and
 nothing else (no Zenoh, no re-timing, no record, no status). ``rota-sitl soak`` measures
 it beside the service, on a second simulated vehicle, so the service's figures are
@@ -22,7 +22,7 @@ from sitl.process import SimProcess
 PROGRAM = """
 import asyncio, sys, time
 import numpy as np
-from companion.autopilot import Autopilot
+from companion.flight.autopilot import Autopilot
 
 async def main(url, seconds):
     ap = Autopilot(url)

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import Config, to_toml
+from companion.flight.plan import blend_speed
 from companion.gs import GroundStation
-from companion.plan import blend_speed
+from companion.settings.config import Config, to_toml
 from sitl.demo import demo_config, free_tcp_port, map_message, start_holding
 from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess

@@ -6,7 +6,7 @@ Zenoh, shared by a sequence of scenarios (PX4 runs in real time: one boot, one f
 What the autopilot did is read from what it reports itself, through a passive MAVLink
 observer on its GCS link (:mod:`sitl.observer`: modes, arming, landed state, position), and
 true clearance from the simulator's ground truth (``HIL_STATE_QUATERNION``), the same way on
-both backends. Used by tests/test_px4_tier.py.
+both backends. Used by tests/e2e/test_px4_tier.py.
 """
 
 from __future__ import annotations

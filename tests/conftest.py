@@ -10,6 +10,16 @@ settings.register_profile("thorough", max_examples=600, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
+@pytest.fixture(scope="module")
+def example(tmp_path_factory):
+    """The library's example trajectory message, as a file."""
+    from rota.cli import example_path
+
+    path = tmp_path_factory.mktemp("cli") / "traj.json"
+    path.write_text(example_path().read_text())
+    return path
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(config, items):
     """The PX4 tier's scenarios share one flight per backend: every test of one backend

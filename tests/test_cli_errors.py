@@ -8,31 +8,12 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 
 import pytest
 
-from rota.cli import example_path
 from sitl.demo import free_tcp_port
-
-PY = sys.executable
-TOOLS = {"rota": "rota.cli", "rota-companion": "companion.cli", "rota-sim": "sitl.cli",
-         "rota-sitl": "sitl.experiment_cli", "rota-gs": "companion.gs.cli"}
-
-
-def run(tool: str, *args: str, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([PY, "-m", TOOLS[tool], *args], capture_output=True, text=True,
-                          timeout=timeout, **kw)
-
-
-def one_line_error(r: subprocess.CompletedProcess, code: int, *words: str) -> None:
-    assert r.returncode == code, (r.returncode, r.stdout, r.stderr)
-    assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, r.stderr
-    for w in words:
-        assert w in lines[0], lines[0]
+from tests.helpers.cli import PY, TOOLS, one_line_error, run, write_config
 
 
 @pytest.mark.parametrize("tool", sorted(TOOLS))
@@ -43,13 +24,6 @@ def test_version_and_help_without_markup(tool):
     assert r.returncode == 0
     for markup in ("``", ":class:", ":func:", "issue #", "Done-when", "::\n"):
         assert markup not in r.stdout, (markup, r.stdout)
-
-
-@pytest.fixture(scope="module")
-def example(tmp_path_factory):
-    path = tmp_path_factory.mktemp("cli") / "traj.json"
-    path.write_text(example_path().read_text())
-    return path
 
 
 def test_rota_retime_rejects_bad_options_before_work(example, tmp_path):
@@ -116,24 +90,14 @@ def test_rota_sitl_bad_numbers():
                    "--trials")
 
 
-def _config(tmp_path, **sections) -> str:
-    lines = []
-    for section, values in sections.items():
-        lines.append(f"[{section}]")
-        lines += [f"{k} = {json.dumps(v)}" for k, v in values.items()]
-    path = tmp_path / "c.toml"
-    path.write_text("\n".join(lines) + "\n")
-    return str(path)
-
-
 def test_check_config_catches_a_missing_zenoh_file_and_a_bad_url(tmp_path):
-    cfg = _config(tmp_path, zenoh={"config_file": str(tmp_path / "nope.json5")})
+    cfg = write_config(tmp_path, zenoh={"config_file": str(tmp_path / "nope.json5")})
     one_line_error(run("rota-companion", "check-config", cfg), 2, "[zenoh] config_file",
                    "no such file")
     one_line_error(run("rota-companion", "run", "--config", cfg), 2, "[zenoh] config_file")
-    cfg = _config(tmp_path, mavlink={"url": "bogus"})
+    cfg = write_config(tmp_path, mavlink={"url": "bogus"})
     one_line_error(run("rota-companion", "check-config", cfg), 2, "[mavlink] url", "bogus")
-    ok = _config(tmp_path, mavlink={"url": "serial:///dev/ttyAMA0:921600"})
+    ok = write_config(tmp_path, mavlink={"url": "serial:///dev/ttyAMA0:921600"})
     assert run("rota-companion", "check-config", ok).returncode == 0
 
 
@@ -142,7 +106,7 @@ def test_run_with_the_zenoh_port_taken_says_so(tmp_path):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", port))
         taken.listen()
-        cfg = _config(tmp_path, service={"state_dir": str(tmp_path)},
+        cfg = write_config(tmp_path, service={"state_dir": str(tmp_path)},
                       zenoh={"listen": [f"tcp/127.0.0.1:{port}"]},
                       mavlink={"url": f"udpin://127.0.0.1:{free_tcp_port()}"})
         r = run("rota-companion", "run", "--config", cfg)
@@ -154,7 +118,7 @@ def test_run_with_the_zenoh_port_taken_says_so(tmp_path):
 
 
 def test_ctrl_c_on_run_stops_cleanly_without_a_traceback(tmp_path):
-    cfg = _config(tmp_path, service={"state_dir": str(tmp_path)},
+    cfg = write_config(tmp_path, service={"state_dir": str(tmp_path)},
                   zenoh={"listen": [f"tcp/127.0.0.1:{free_tcp_port()}"]},
                   mavlink={"url": f"udpin://127.0.0.1:{free_tcp_port()}"})
     # a terminal's Ctrl-C goes to the whole process group: the service and its worker

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from sitl.demo import free_tcp_port
-from tests.test_cli_errors import _config
+from tests.helpers.cli import write_config
 
 PY = sys.executable
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +63,7 @@ def test_service_extends_the_start_timeout_while_it_compiles(tmp_path):
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(path)
     sock.settimeout(1.0)
-    cfg = _config(tmp_path, service={"state_dir": str(tmp_path)},
+    cfg = write_config(tmp_path, service={"state_dir": str(tmp_path)},
                   zenoh={"listen": [f"tcp/127.0.0.1:{free_tcp_port()}"]},
                   mavlink={"url": f"udpin://127.0.0.1:{free_tcp_port()}"})
     proc = subprocess.Popen([PY, "-m", "companion.cli", "run", "--config", cfg],

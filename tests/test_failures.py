@@ -12,7 +12,7 @@ import pytest
 
 from rota.cli import example_path
 from rota.voxelmap import VoxelMap
-from tests.test_cli_errors import _config, one_line_error, run
+from tests.helpers.cli import one_line_error, run, write_config
 
 #: A voxel on the example's path (at tau 3.3 s): its re-time is rejected.
 ON_PATH = [[2.05, 1.25, 1.55]]
@@ -25,7 +25,7 @@ def test_unwritable_directories_are_caught_by_check_config_and_run(tmp_path, sec
     blocker.write_text("")
     values = {"service": {"state_dir": str(tmp_path / "state")}, "record": {}}
     values[section][setting] = str(blocker / "sub")
-    cfg = _config(tmp_path, **values)
+    cfg = write_config(tmp_path, **values)
     for args in (["check-config", cfg], ["run", "--config", cfg]):
         one_line_error(run("rota-companion", *args), 2, f"[{section}] {setting}",
                        "cannot be created")
@@ -60,7 +60,7 @@ def _results(tmp_path):
 
 
 def _record(tmp_path, *, telemetry=True):
-    from companion.record import Recorder
+    from companion.recording.record import Recorder
 
     ok, flown, _, rejected = _results(tmp_path)
     rec = Recorder(tmp_path / "rec", "drone1")
@@ -143,7 +143,7 @@ def test_replay_of_what_is_no_flight_is_one_line(tmp_path):
         w.add_message(channel_id=cid, log_time=1, data=b"\x08\x96\x01", publish_time=1)
         w.finish()
     one_line_error(run("rota-gs", "replay", str(foreign)), 2, "no flight-record channels")
-    from companion.record import Recorder
+    from companion.recording.record import Recorder
 
     rec = Recorder(tmp_path / "idle", "drone1")
     rec.put("config", {"limits": {"v_max": 1.5}})

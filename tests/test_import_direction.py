@@ -121,3 +121,39 @@ def test_the_cycle_check_sees_a_circle_hidden_in_a_function(tmp_path):
     (pkg / "c.py").write_text("from typing import TYPE_CHECKING\n"
                               "if TYPE_CHECKING:\n    from p.a import g\n")
     assert import_cycles(tmp_path, ("p",)) == [["p.a", "p.b"]]  # (c's is type-only)
+
+
+#: The longest a source file of the packages may be: a file a reader takes in whole
+MAX_LINES = 600
+
+
+def test_no_source_file_is_longer_than_a_reader_takes_in_whole():
+    long = [f"{p.relative_to(ROOT)}: {n} lines" for pkg in ("rota", "companion", "sitl")
+            for p in sorted((ROOT / pkg).rglob("*.py"))
+            if (n := len(p.read_text().splitlines())) > MAX_LINES]
+    assert not long, "\n".join(long)
+
+
+def _root(node: ast.AST) -> str | None:
+    while isinstance(node, ast.Attribute):
+        node = node.value
+    return node.id if isinstance(node, ast.Name) else None
+
+
+def callbacks_wired_after(source: str) -> list[int]:
+    """Lines that hand a part a callback after it was built: ``self.part.x = <a lambda
+    or one of self's methods>``."""
+    return [node.lineno for node in ast.walk(ast.parse(source)) if isinstance(node, ast.Assign)
+            for t in node.targets
+            if isinstance(t, ast.Attribute) and isinstance(t.value, ast.Attribute)
+            and _root(t) == "self"
+            and (isinstance(node.value, ast.Lambda) or _root(node.value) == "self")]
+
+
+def test_the_service_is_wired_through_constructors():
+    """The composition root (companion/service.py) gives each part its callbacks when
+    it builds it, never by assigning them afterwards (it can fail: see the sample)."""
+    sample = "class S:\n    def f(self):\n        self.stream.on_halt = self._halted\n" \
+             "        self.a.b = lambda: 1\n        self.commander.state = State.STOPPING\n"
+    assert callbacks_wired_after(sample) == [3, 4]
+    assert callbacks_wired_after((ROOT / "companion" / "service.py").read_text()) == []

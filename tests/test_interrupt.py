@@ -14,6 +14,8 @@ import time
 import numpy as np
 import pytest
 
+from tests.helpers.cli import console_command
+
 PY = sys.executable
 #: Control points of the long path (knot span 1 s) and the grid step: about 50k grid
 #: nodes, a solve of 1-3 s on this machine (a round's compiled call: up to ~1 s).
@@ -77,31 +79,16 @@ def test_library_raises_keyboard_interrupt_at_any_moment(long_path):
         assert "SystemError" not in err and "Traceback" not in err, (moment, err[-2000:])
 
 
-def _cli(tool: str) -> list[str]:
-    """The command as its console script runs it (pyproject's [project.scripts]),
-    after a line "started" on stderr: the interpreter's own start-up (its site
-    imports, 0.1-0.2 s here) comes before any code of the project can act, and a
-    Ctrl-C in it gives Python's own traceback; :func:`_start` waits for the line."""
-    module, func = {"rota": ("companion.entry", "rota"),
-                    "rota-companion": ("companion.entry", "companion"),
-                    "rota-gs": ("companion.entry", "gs"),
-                    "rota-sim": ("sitl.entry", "sim"),
-                    "rota-sitl": ("sitl.entry", "sitl")}[tool]
-    return [PY, "-c", "import sys; print('started', file=sys.stderr, flush=True); "
-            f"from {module} import {func}; sys.argv[0] = {tool!r}; "
-            f"sys.exit({func}())"]
-
-
 def test_entry_points_are_the_shims():
     import tomllib
 
-    from tests.test_cli_errors import TOOLS
+    from tests.helpers.cli import TOOLS
 
     scripts = tomllib.loads(open("pyproject.toml", "rb").read().decode())["project"]["scripts"]
     assert set(scripts) == set(TOOLS)
     for tool, target in scripts.items():
         module, func = target.split(":")
-        assert f"; from {module} import {func};" in _cli(tool)[2], tool
+        assert f"; from {module} import {func};" in console_command(tool)[2], tool
 
 
 def _start(command: list[str]) -> subprocess.Popen:
@@ -125,7 +112,7 @@ def test_rota_retime_exits_130_at_any_moment(long_path, tmp_path):
     rng = random.Random()
     for i in range(TRIES):
         out = tmp_path / f"r{i}.json"
-        proc = _start(_cli("rota") + ["retime", str(long_path), "-o", str(out), "--dtau",
+        proc = _start(console_command("rota") + ["retime", str(long_path), "-o", str(out), "--dtau",
                                       str(DTAU)])
         moment = rng.uniform(0.05, 4.0)
         time.sleep(moment)
@@ -152,7 +139,7 @@ def test_every_cli_exits_130_while_it_starts_or_runs(tool, args):
 
     args = [a.format(port=free_tcp_port()) for a in args]
     for moment in (0.05, 0.1, 0.3, 0.6, 1.2, 4.0):
-        proc = _start(_cli(tool) + args)  # the shim is entered in about 1 ms
+        proc = _start(console_command(tool) + args)  # the shim is entered in about 1 ms
         time.sleep(moment)
         os.killpg(proc.pid, signal.SIGINT)
         code, _, err = _finish(proc, moment)
@@ -167,8 +154,9 @@ def test_rota_retime_second_ctrl_c_stops_at_once(long_path, tmp_path):
     """A long step: the first Ctrl-C is noted (it takes effect when the step
     returns), the second stops at once."""
     out = tmp_path / "r.json"
-    proc = _start(_cli("rota") + ["retime", str(long_path), "-o", str(out), "--dtau", "0.002",
-                                  "--max-points", "1000000"])  # 250k nodes: long rounds
+    proc = _start(console_command("rota") + ["retime", str(long_path), "-o", str(out),
+                                             "--dtau", "0.002", "--max-points", "1000000"])
+    # (250k nodes: long rounds)
     line = proc.stderr.readline()  # the progress line: the solve has begun
     assert "re-timing" in line, line
     time.sleep(1.0)

@@ -3,7 +3,6 @@
 Guide: ``docs/groundstation.md``."""
 
 from companion.gs.client import (
-    COMMANDS,
     GroundStation,
     GroundStationError,
     Vehicle,
@@ -11,6 +10,7 @@ from companion.gs.client import (
     open_session,
     zenoh_config,
 )
+from companion.protocol import COMMANDS
 
 __all__ = ["COMMANDS", "GroundStation", "GroundStationError", "Vehicle", "list_vehicles",
            "open_session", "zenoh_config"]

@@ -18,18 +18,14 @@ import json
 import shutil
 import sys
 import time
-from collections.abc import Callable
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from companion.gs.client import COMMANDS, GroundStation, GroundStationError, list_vehicles
+from companion.entry import package_version
+from companion.gs.client import GroundStation, GroundStationError, list_vehicles
 from companion.gs.view import NO_CONTACT_S, contact_age, render_status
+from companion.protocol import COMMANDS, KEY_PREFIX
 from rota.errors import InputError
-
-if TYPE_CHECKING:  # imported where used: the CLI starts faster without them
-    from companion.config import Config
-    from companion.ros2.send import RosMessage
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_UNREACHABLE = 0, 1, 2, 3
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
@@ -37,13 +33,6 @@ DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
 class Unreachable(RuntimeError):
     """The service did not answer (exit status 3)."""
-
-
-def package_version() -> str:
-    try:
-        return version("rota-companion")
-    except PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "unknown"
 
 
 def _station(args: argparse.Namespace, vehicle: str | None = None) -> GroundStation:
@@ -281,14 +270,16 @@ def cmd_estimator(args: argparse.Namespace) -> int:
 
 
 def cmd_send(args: argparse.Namespace) -> int:
+    from companion.gs import ros_input  # (the ROS types load only for a send)
+
     if args.ros2:
-        ros, cfg = _ros_message(args, args.ros2)
+        ros, cfg = ros_input.read(args, args.ros2)
         ident = ros.id
-        send = _ros_sender(cfg, ros)
+        send = ros_input.sender(cfg, ros)
     else:
         from rota.schema import load, trajectory_from_dict
 
-        _no_ros_options(args)
+        ros_input.refuse_options(args)
 
         msg = load(args.file)
         parsed = trajectory_from_dict(msg)  # a bad file fails here, naming the field
@@ -335,61 +326,23 @@ def _await(probe, timeout_s: float) -> Any:  # noqa: ANN001
     return None
 
 
-ROS_OPTIONS = ("config", "layout", "distro", "domain_id", "namespace", "topic", "bspline_type",
-               "bspline_msg")
-
-
-def _ros_message(args: argparse.Namespace, kind: str) -> tuple[RosMessage, Config]:
-    """The ROS message in ``args.file`` for input ``kind`` and the configuration it was
-    read with: ``--config`` (or the defaults), its ``[ros2]`` changed by the flags. The
-    message is stamped now unless ``--keep-stamp``."""
-    from companion.config import ConfigError, from_dict, load
-    from companion.ros2.send import read_message
-
-    flags = {"layout": args.layout, "distro": args.distro, "domain_id": args.domain_id,
-             "namespace": args.namespace, "bspline_type": args.bspline_type,
-             "bspline_msg": args.bspline_msg, f"{kind}_topic": args.topic}
-    try:
-        cfg = from_dict({"ros2": {k: v for k, v in flags.items() if v is not None}},
-                        base=load(args.config))
-    except ConfigError as exc:
-        raise InputError(args.config or "ROS options", str(exc)) from None
-    stamp = None if args.keep_stamp else time.time()
-    return read_message(args.file, kind, cfg.ros2, stamp), cfg
-
-
-def _no_ros_options(args: argparse.Namespace) -> None:
-    given = [name for name in ROS_OPTIONS if getattr(args, name) is not None]
-    if given:
-        raise InputError("--" + given[0].replace("_", "-"), "only for a ROS message (--ros2)")
-
-
-def _ros_sender(cfg: Config, ros: RosMessage) -> Callable[[GroundStation], None]:
-    """Publish ``ros`` on the ground station's session as a ROS node of the layout would
-    (its tokens stay declared while the session lives)."""
-    from companion.ros2.send import RosPublisher
-
-    def send(gs: GroundStation) -> None:
-        RosPublisher(gs.session, cfg.ros2, ros.topic, ros.typename).put(ros.cdr)
-
-    return send
-
-
 def cmd_send_map(args: argparse.Namespace) -> int:
+    from companion.gs import ros_input  # (the ROS types load only for a send)
+
     if args.ros2:
         from companion.messages import Rejected
         from companion.ros2.send import decoded
 
-        ros, cfg = _ros_message(args, "pointcloud")
+        ros, cfg = ros_input.read(args, "pointcloud")
         try:
             vmap = decoded(ros, cfg)  # the voxel count the service will report
         except Rejected as exc:
             raise InputError(args.file, str(exc)) from None
-        send = _ros_sender(cfg, ros)
+        send = ros_input.sender(cfg, ros)
     else:
         from rota.cli import load_map
 
-        _no_ros_options(args)
+        ros_input.refuse_options(args)
 
         vmap = load_map(args.file, args.resolution)
         msg = vmap.to_dict() | {"stamp": time.time()}
@@ -489,7 +442,7 @@ def make_parser() -> argparse.ArgumentParser:
     g = common.add_argument_group("connection")
     g.add_argument("-V", "--vehicle", default="drone1",
                    help="vehicle id ([service] vehicle_id; default drone1)")
-    g.add_argument("--prefix", default="rota", help="Zenoh key prefix (default rota)")
+    g.add_argument("--prefix", default=KEY_PREFIX, help=f"Zenoh key prefix (default {KEY_PREFIX})")
     g.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help=f"Zenoh endpoint of the service or a router, e.g. tcp/HOST:7447 "
                    f"(repeatable; default {DEFAULT_CONNECT} without --zenoh-config)")

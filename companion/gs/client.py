@@ -20,6 +20,8 @@ from typing import Any
 
 import zenoh
 
+from companion.protocol import KEY_PREFIX, vehicle_key
+
 #: The state each command leads to, as the status reports it (None: any), and
 #: how long the vehicle may take to get there.
 CONFIRM: dict[str, tuple[Callable[[dict[str, Any]], bool], float, str]] = {
@@ -33,7 +35,6 @@ CONFIRM: dict[str, tuple[Callable[[dict[str, Any]], bool], float, str]] = {
     "land": (lambda s: s.get("state") in ("ready", "not_ready"), 90.0,
              "landed and disarmed (ready)"),
 }
-COMMANDS = tuple(CONFIRM)
 
 
 class GroundStationError(RuntimeError):
@@ -133,7 +134,7 @@ class GroundStation:
     """
 
     def __init__(self, vehicle: str = "drone1", *, connect: Sequence[str] = (),
-                 config_file: str | None = None, key_prefix: str = "rota",
+                 config_file: str | None = None, key_prefix: str = KEY_PREFIX,
                  session: zenoh.Session | None = None, history: int = 100000,
                  wait_s: float = 0.0,
                  on_message: Callable[[str, dict[str, Any]], None] | None = None) -> None:
@@ -159,12 +160,12 @@ class GroundStation:
     @classmethod
     def for_service(cls, cfg: Any, endpoint: str, **kwargs: Any) -> GroundStation:
         """A ground station for the service configured by ``cfg`` (a
-        :class:`companion.config.Config`), connecting to ``endpoint``."""
+        :class:`companion.settings.config.Config`), connecting to ``endpoint``."""
         return cls(cfg.service.vehicle_id, key_prefix=cfg.service.key_prefix,
                    connect=[endpoint], **kwargs)
 
     def key(self, *parts: str) -> str:
-        return "/".join((self.key_prefix, self.vehicle, *parts))
+        return vehicle_key(self.key_prefix, self.vehicle, *parts)
 
     # ------------------------------------------------------------ receiving
     def identify(self) -> None:

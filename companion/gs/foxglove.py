@@ -5,7 +5,7 @@ with matplotlib (``rota-gs foxglove --render``), for where Foxglove cannot run.
 
 The live server is a Zenoh client of the service like every ``rota-gs`` command; it
 turns what the service publishes (status, telemetry, re-timed results, the map)
-into the same topics as the flight record (:mod:`companion.foxglove`) and serves
+into the same topics as the flight record (:mod:`companion.recording.foxglove`) and serves
 them on ``127.0.0.1:8765`` by default (this machine only: the protocol has no
 authentication). Foxglove: *Open connection*, *Foxglove WebSocket*,
 ``ws://127.0.0.1:8765``.
@@ -24,7 +24,8 @@ from typing import Any
 import foxglove
 from foxglove import layouts as fl
 
-from companion.foxglove import (
+from companion.gs.client import GroundStation, GroundStationError
+from companion.recording.foxglove import (
     BODY_FRAME,
     LATCHED,
     MAP_FRAME,
@@ -33,7 +34,6 @@ from companion.foxglove import (
     Scene,
     schema_of,
 )
-from companion.gs.client import GroundStation, GroundStationError
 
 log = logging.getLogger("rota.gs.foxglove")
 
@@ -211,7 +211,7 @@ def decoded(paths: Iterable[str | Path]) -> dict[str, list[tuple[float, Any]]]:
 
     from mcap_protobuf.decoder import DecoderFactory
 
-    from companion.record import read_raw
+    from companion.recording.record import read_raw
 
     factory, decoders = DecoderFactory(), {}
     out: dict[str, list[tuple[float, Any]]] = {}

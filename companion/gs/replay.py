@@ -1,4 +1,4 @@
-"""Replay a flight record (:mod:`companion.record`): its figures and the plot an
+"""Replay a flight record (:mod:`companion.recording.record`): its figures and the plot an
 engineer reads after a flight.
 
 The plot has the path over the map (top view: the planner's paths, what was
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.record import read
+from companion.recording.record import read
 from rota.errors import InputError
 
 #: Plan colours: no red or orange (the speed limit and braking zones use them).
@@ -87,7 +87,7 @@ class Flight:
 
 #: The first bytes of every MCAP file.
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-#: The channels of a flight record (companion.record).
+#: The channels of a flight record (companion.recording.record).
 CHANNELS = ("telemetry", "setpoint", "retimed", "map", "command", "status", "log", "config",
             "trajectory")
 

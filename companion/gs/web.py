@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.gs.client import COMMANDS, GroundStation, GroundStationError
+from companion.gs.client import GroundStation, GroundStationError
 from companion.gs.webauth import (
     OWN_SITES,
     Access,
@@ -42,6 +42,7 @@ from companion.gs.webauth import (
     tls_context,
     write_token,
 )
+from companion.protocol import COMMANDS
 from rota.errors import InputError
 
 log = logging.getLogger("rota.gs")
@@ -342,24 +343,27 @@ def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
     check_bind(host, tls_cert is not None)
     tls = tls_context(tls_cert, tls_key) if tls_cert and tls_key else None
     station = WebStation(make_station(vehicle))
+    server: WebServer | None = None
+    path: Path | None = None
+    # From here every way out, a Ctrl-C at any moment included, goes through the
+    # ``finally``: the Zenoh session left open would hold the interpreter at its exit.
     try:
-        server = start(station, vehicle, host, port, tls=tls, names=names)
-    except OSError as exc:
-        station.close()
-        raise OSError(f"cannot serve on {host}:{port}: {exc.strerror}") from None
-    path = token_file or default_token_file(server.access.port)
-    try:
-        write_token(path, server.access.token)
-    except OSError as exc:
-        stop(server)
-        station.close()
-        raise OSError(f"cannot write the token file {path}: {exc.strerror}") from None
-    where = "over HTTPS (TLS)" if tls else "on this machine's loopback only"
-    print(f"rota-gs: ground station for vehicle {vehicle!r}, served {where}; every request "
-          f"needs this session's token, in the address below and in {path} (readable by "
-          f"you only); answers to host names {', '.join(sorted(server.access.hosts))}. "
-          f"Ctrl-C stops. Open:\n{page_url(server, host)}", flush=True)
-    try:
+        try:
+            server = start(station, vehicle, host, port, tls=tls, names=names)
+        except OSError as exc:
+            raise OSError(f"cannot serve on {host}:{port}: {exc.strerror}") from None
+        path = token_file or default_token_file(server.access.port)
+        try:
+            write_token(path, server.access.token)
+        except OSError as exc:
+            tried, path = path, None  # (not written: nothing to remove)
+            raise OSError(f"cannot write the token file {tried}: {exc.strerror}") from None
+        where = "over HTTPS (TLS)" if tls else "on this machine's loopback only"
+        print(f"rota-gs: ground station for vehicle {vehicle!r}, served {where}; every "
+              f"request needs this session's token, in the address below and in {path} "
+              f"(readable by you only); answers to host names "
+              f"{', '.join(sorted(server.access.hosts))}. Ctrl-C stops. Open:\n"
+              f"{page_url(server, host)}", flush=True)
         while True:
             # short sleeps: a Ctrl-C the kernel hands to another thread (Zenoh's, the
             # server's) only sets Python's flag, and the handler runs in this thread
@@ -368,6 +372,8 @@ def serve(make_station: Callable[[str], GroundStation], vehicle: str, host: str,
     except KeyboardInterrupt:
         pass
     finally:
-        path.unlink(missing_ok=True)  # first: the token dies with the session, whatever
-        stop(server)                  # closing Zenoh below does
+        if path is not None:
+            path.unlink(missing_ok=True)  # first: the token dies with the session
+        if server is not None:
+            stop(server)
         station.close()

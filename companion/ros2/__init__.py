@@ -13,5 +13,5 @@ messages (CDR) on the key expressions of ``rmw_zenoh`` or ``zenoh-bridge-ros2dds
   published as a ROS node of the layout would (``rota-gs send --ros2``).
 
 User guide: ``docs/ros2.md``. This package imports nothing heavy at import time, so
-:mod:`companion.config` can import the settings.
+:mod:`companion.settings.config` can import the settings.
 """

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import Config
 from companion.messages import Incoming, Rejected, check_age, check_trajectory
 from companion.ros2.types import MULTIDOF, PATH, POINTCLOUD, typestore
+from companion.settings.config import Config
 from rota.errors import InputError
 from rota.schema import TrajectoryMessage
 from rota.trajectory import BSplineTrajectory, SampledTrajectory

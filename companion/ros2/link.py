@@ -16,7 +16,7 @@ from typing import Any
 
 import zenoh
 
-from companion.outbox import Send, send_now
+from companion.network.outbox import Send, send_now
 from companion.ros2 import decode
 from companion.ros2.encode import retimed_cdr_from_json, status_cdr
 from companion.ros2.layout import Endpoint, RmwZenoh, make_layout

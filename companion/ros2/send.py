@@ -18,13 +18,13 @@ from typing import Any
 import zenoh
 from ruamel.yaml import YAML, YAMLError
 
-from companion.config import Config
 from companion.ros2.decode import message_id
 from companion.ros2.encode import message_from_dict, ros_time
 from companion.ros2.layout import Endpoint, make_layout
 from companion.ros2.link import input_kinds
 from companion.ros2.settings import Ros2Settings
 from companion.ros2.types import typestore
+from companion.settings.config import Config
 from rota.errors import InputError
 
 #: The ROS inputs of the service, by kind (the topic settings are ``[ros2] <kind>_topic``).

@@ -1,0 +1,348 @@
+"""Fault injection, end to end: the service runs as systemd runs it (its own
+process), flies the ``sitl`` vehicle over MAVLink/UDP and talks Zenoh on
+loopback; faults are injected from outside (signals, killed workers, a
+restarted Zenoh peer, a flood, a kill switch) and every setpoint the vehicle
+received is checked: gaps, jumps, limits and the geofence.
+
+Timing: waits are on states the service reports; the margins below are
+justified where they appear.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from companion.gs import GroundStation
+from sitl.fuzz import run_fuzz
+from sitl.proving import Flight, flood, statuses_errors, until
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
+
+
+def run(flight: Flight, scenario):
+    try:
+        with flight:
+            out = asyncio.run(scenario(flight))
+    except BaseException:
+        print("service log:\n", getattr(flight, "log", "")[-6000:])
+        report = flight.sim.report
+        print("vehicle events:", report.events if report else None)
+        print("collisions:", report.collisions if report else None)
+        if report is not None and os.environ.get("ROTA_DEBUG_DIR"):
+            np.savez(os.path.join(os.environ["ROTA_DEBUG_DIR"], "setpoints.npz"),
+                     **report.setpoints, true_position=report.true_position,
+                     time_s=report.time_s, home=report.home_enu)
+        raise
+    return out, flight.sim.report
+
+
+def assert_stream_ok(flight: Flight, report, window=None) -> None:
+    figures = flight.figures(window, report.setpoints)
+    print("vehicle side:", figures.summary())
+    # the service's own account of its late ticks (the kernel's figures), to tell why
+    late = [ln for ln in getattr(flight, "log", "").splitlines()
+            if "setpoint stream late" in ln or "stalled for" in ln]
+    assert not figures.problems(), "\n".join([figures.summary(), *late[-10:]])
+    assert not report.collisions
+
+
+def worker_pid(gs, name: str) -> int:
+    return gs.status["supervision"]["worker_pids"][name][0]
+
+
+def test_killed_workers_are_reported_respawned_and_replanning_goes_on():
+    async def scenario(f: Flight):
+        gs = f.gs
+        await f.take_off()
+        await f.circle("c0")
+        t_fly = time.monotonic()
+        # the re-time worker, idle: killed, reported within a second, respawned
+        pid = worker_pid(gs, "re-time")
+        os.kill(pid, signal.SIGKILL)
+        t_kill = time.time()
+        await gs.wait_for(lambda s: any("re-time worker killed by SIGKILL" in e["message"]
+                                        for e in s.get("events", ())), 5, "the report")
+        event = next(e for s in gs.statuses for e in s.get("events", ())
+                     if "re-time worker killed by SIGKILL" in e["message"])
+        await gs.wait_for(lambda s: s["supervision"]["worker_pids"]["re-time"]
+                          and worker_pid(gs, "re-time") != pid, 20, "a new worker")
+        # the next trajectory is re-timed and flown
+        f.replan("c1")
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "c1", 20, "c1 to fly")
+        # busy: a trajectory that takes long to re-time (a 20-minute circle), killed
+        # while the worker solves it; the death is reported as a death, not a timeout
+        f.replan("slow", duration_s=1200.0)
+        await gs.wait_for(lambda s: s.get("retiming") == "slow", 10, "the slow re-time")
+        os.kill(worker_pid(gs, "re-time"), signal.SIGKILL)
+        f.replan("c2")
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "c2", 30, "c2 to fly")
+        # the decoder's workers too
+        os.kill(worker_pid(gs, "decode"), signal.SIGKILL)
+        await gs.wait_for(lambda s: any("decode worker killed" in e["message"]
+                                        for e in s.get("events", ())), 5, "decoder report")
+        # (a planner sends at 10 Hz; this one re-sends c3 every 2 s: the two new decode
+        # workers import for up to 7 s beside two busy loops, and a trajectory stamped
+        # over 5 s ago is refused as stale, by design)
+        end = time.monotonic() + 30
+        while True:
+            f.replan("c3")
+            try:
+                await gs.wait_for(lambda s: s.get("trajectory_id") == "c3", 2, "c3 to fly")
+                break
+            except TimeoutError:
+                if time.monotonic() > end:
+                    raise
+        # a Zenoh peer restarts (the planner's session closes and a new one opens)
+        gs.close()
+        f.gs = gs2 = GroundStation.for_service(f.cfg, f"tcp/127.0.0.1:{f.zenoh_port}",
+                                               wait_s=30.0)
+        await gs2.wait_for(lambda s: s.get("state") == "offboard", 20, "status again")
+        f.replan("c4")
+        await gs2.wait_for(lambda s: s.get("trajectory_id") == "c4", 20, "c4 to fly")
+        # forced solver fallback: one solver iteration cannot converge
+        reply = gs2.config({"limits": {"solver_max_iter": 1}})
+        assert reply["ok"], reply
+        f.replan("c5")
+        await gs2.wait_for(lambda s: s.get("trajectory_id") == "c5", 20, "c5 to fly")
+        fallback = gs2.status["last_retime"]
+        errors = statuses_errors([*gs.statuses, *gs2.statuses])
+        return t_fly, t_kill, event, errors, fallback, gs2.status
+
+    flight = Flight()
+    (t_fly, t_kill, event, errors, fallback, status), report = run(flight, scenario)
+    # detected within one second (the supervisor looks four times a second)
+    assert event["stamp"] - t_kill <= 1.0, event
+    # killed mid-solve: reported as a death after so long, not as a timeout (a retry of
+    # the same slow trajectory may then time out on its own)
+    assert any(e.startswith("slow: re-time worker killed by SIGKILL after") for e in errors), \
+        errors
+    assert fallback["id"] == "c5" and fallback["status"] == "fallback", fallback
+    assert status["supervision"]["worker_restarts"]["re-time"] >= 2
+    assert flight.exit_code == 0
+    assert_stream_ok(flight, report, (t_fly, np.inf))
+
+
+async def at_speed(f: Flight) -> float:
+    """Take off, fly the proving circle, wait until it is under way; when it began."""
+    await f.take_off()
+    await f.circle("c0")
+    t_fly = time.monotonic()
+    await f.gs.wait_for(lambda s: (s.get("progress") or 0) > 0.05, 20, "speed")
+    return t_fly
+
+
+def sender_pid(service_pid: int) -> int | None:
+    """The setpoint sender process of the service (a child running companion.flight.sender)."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read()
+        except OSError:
+            continue
+        if ppid == service_pid and b"companion.flight.sender" in cmd:
+            return int(entry)
+    return None
+
+
+def test_a_killed_setpoint_sender_is_reported_and_restarted_without_a_gap():
+    """The sender process is killed mid-flight: the death is on status in words,
+    setpoints go out from the service itself until a new sender runs, and the vehicle
+    sees a stream within its budget throughout."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        await f.take_off()
+        await f.circle("c0")
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.02, 20, "speed")
+        old = sender_pid(f.service.pid)
+        t0 = time.monotonic()
+        os.kill(old, signal.SIGKILL)
+        await gs.wait_for(lambda s: any("setpoint sender process exited (code -9)"
+                                        in e["message"] for e in s.get("events", ())),
+                          5, "the report")
+        await until(lambda: sender_pid(f.service.pid) not in (None, old), 20,
+                    "a new sender")
+        new = sender_pid(f.service.pid)
+        await until(lambda: time.monotonic() > t0 + 3.0, 10, "three seconds of flight")
+        return old, new, t0, time.monotonic(), gs.status
+
+    flight = Flight()
+    (old, new, t0, t1, after), report = run(flight, scenario)
+    assert old and new and new != old
+    print(flight.log[-4000:])
+    assert after["state"] == "offboard" and not after["halted"], after
+    assert after["trajectory_id"] == "c0", after
+    assert_stream_ok(flight, report, (t0 - 1.0, t1))
+
+
+def stop_service(flight: Flight, seconds: float) -> tuple[float, float]:
+    """Freeze the whole service process (SIGSTOP) for ``seconds``: the fault itself,
+    so a timed wait; the pause is left out of the gap figures."""
+    t0 = time.monotonic()
+    flight.service.signal(signal.SIGSTOP)
+    time.sleep(seconds)
+    flight.service.signal(signal.SIGCONT)
+    t1 = time.monotonic()
+    flight.pauses.append((t0, t1))
+    return t0, t1
+
+
+def test_a_short_stall_brakes_from_the_last_setpoint_and_needs_a_new_start():
+    """Frozen for 0.5 s (over the 0.25 s stall budget, under PX4's 1 s offboard-loss
+    timeout): no leap ahead where the plan would be by now; a brake from the last
+    setpoint sent, the vehicle stays in OFFBOARD, and trajectories fly again only
+    after a new start."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        t_fly = await at_speed(f)
+        t0, t1 = stop_service(f, 0.5)
+        await gs.wait_for(lambda s: s.get("halted"), 10, "the halt")
+        halted = gs.status
+        f.replan("c1")  # not flown: the flight is halted until 'start'
+        await gs.wait_for(lambda s: (s.get("last_retime") or {}).get("id") == "c1", 10,
+                          "c1 re-timed")
+        await gs.wait_for(lambda s: s.get("command") == "hold", 10, "the hold")
+        not_flown = gs.status
+        reply = await f.command("start")
+        f.replan("c2")
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "c2", 20, "c2 to fly")
+        return t_fly, (t0, t1), halted, not_flown, reply, time.monotonic()
+
+    flight = Flight()
+    (t_fly, (t0, t1), halted, not_flown, reply, t_end), report = run(flight, scenario)
+    assert "stalled for 0.5" in halted["halted"] and halted["state"] == "offboard"
+    assert not_flown["trajectory_id"] is None and not_flown["state"] == "offboard"
+    assert reply["ok"]
+    sp = report.setpoints
+    before = np.flatnonzero(sp["wall_time"] < t0)[-1]
+    # the first setpoint after the stall continues from the last one before it
+    step = np.linalg.norm(sp["position"][before + 1] - sp["position"][before])
+    assert step <= flight.allowed_speed * 0.02 + 0.01, step
+    wall = sp["wall_time"]
+    assert set(sp["mode"][(wall > t_fly) & (wall < t_end)]) == {"OFFBOARD"}, \
+        (report.events, flight.log[-6000:])
+    # Then the service is stopped: it hands the vehicle to PX4's Hold and streams
+    # until PX4 confirms it, so the last setpoints may arrive in Hold.
+    print("modes after the flight:", sorted(set(sp["mode"][wall >= t_end])))
+    assert set(sp["mode"][wall >= t_end]) <= {"OFFBOARD", "AUTO_LOITER"}
+    assert_stream_ok(flight, report, (t_fly, np.inf))
+
+
+def test_a_long_stall_ends_the_stream_and_never_takes_px4_back():
+    """Frozen for 1.5 s, over PX4's offboard-loss timeout: PX4's failsafe takes the
+    vehicle; the resumed service sends nothing (a resumed stale stream would take
+    real PX4 back into OFFBOARD), says why, and a new start flies again."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        t_fly = await at_speed(f)
+        t0, t1 = stop_service(f, 1.5)
+        await gs.wait_for(lambda s: not s.get("streaming") and s["state"] == "airborne", 10,
+                          "the end of the stream")
+        ended = statuses_errors(gs.statuses)
+        quiet = f.sim.setpoints()
+        t_start = f.sim.state()["time_s"]
+        await f.command("start")
+        f.replan("c1")
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "c1", 20, "c1 to fly")
+        return t_fly, (t0, t1), ended, quiet, t_start
+
+    flight = Flight()
+    (t_fly, (t0, t1), ended, quiet, t_start), report = run(flight, scenario)
+    assert any("stalled for 1.5" in e and "offboard-loss" in e for e in ended), ended
+    assert not any("link lost" in e for e in ended), ended  # a frozen process is no link loss
+    # nothing reached the vehicle between the resume and the next start
+    late = quiet["wall_time"] > t1
+    assert not np.any(late), (quiet["wall_time"][late] - t1, np.diff(quiet["sent_s"])[-3:])
+    # PX4's failsafe took the vehicle, and it was not back in OFFBOARD before the start
+    failsafe = next(t for t, e in report.events if "Failsafe" in e)
+    back = [t for t, e in report.events if e == "Mode OFFBOARD" and t > failsafe]
+    assert back and back[0] > t_start, (report.events, t_start)
+    assert_stream_ok(flight, report, (t_fly, t0))
+
+
+def test_a_kill_switch_in_the_air_takes_the_service_out_of_offboard():
+    """PX4 disarms in flight (a kill switch, a crash detector): the service leaves
+    its offboard state at once with the reason, stops streaming, and land, disarm
+    and arm answer as documented."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        await f.take_off()
+        await f.circle("c0")
+        f.sim.force_disarm()
+        t_kill = time.monotonic()
+        await gs.wait_for(lambda s: s["state"] in ("ready", "not_ready"), 10, "the service")
+        t_seen = time.monotonic()
+        status = gs.status
+        land, disarm = await gs.command("land"), await gs.command("disarm")
+        await until(lambda: f.sim.state()["landed_state"] == 1, 20, "the vehicle on the ground")
+        arm = await gs.command("arm")
+        return t_kill, t_seen, status, land, disarm, arm
+
+    flight = Flight()
+    (t_kill, t_seen, status, land, disarm, arm), report = run(flight, scenario)
+    assert "PX4 reports the vehicle disarmed" in " ".join(statuses_errors([status]))
+    assert not status["streaming"] and not status["armed"]
+    assert land["ok"] and "nothing to land" in land["message"], land
+    assert disarm["ok"] and disarm["message"] == "already disarmed", disarm
+    assert arm["ok"], arm["message"]
+    sp = report.setpoints
+    # the stream stops with the link monitor's next look (10 Hz), once the disarm is
+    # seen in telemetry
+    assert not np.any(sp["wall_time"] > t_seen + 0.2)
+
+
+def test_a_command_flood_leaves_the_mission_flying():
+    """1,000 queries a second for 5 s from another peer (arm, disarm, takeoff, start,
+    unknown commands, config and estimator reads): every one answered, status no
+    faster than its rate, the stream within its budget, the mission unchanged."""
+    async def scenario(f: Flight):
+        gs = f.gs
+        await f.take_off()
+        await f.circle("c0")
+        await gs.wait_for(lambda s: (s.get("progress") or 0) > 0.02, 20, "speed")
+        n0 = gs.status_count
+        t0 = time.monotonic()
+        wait = flood(f, 1000.0, 5.0)
+        sent, replied, refused, took = await asyncio.get_running_loop().run_in_executor(
+            None, wait)
+        t1 = time.monotonic()
+        statuses = list(gs.statuses)[n0 - gs.status_count:] if gs.status_count > n0 else []
+        return t0, t1, sent, replied, refused, took, statuses, gs.status
+
+    flight = Flight()
+    (t0, t1, sent, replied, refused, took, statuses, after), report = run(flight, scenario)
+    # (on a busy machine the flood itself may fall behind 1,000 a second: it then
+    # sends its 5,000 queries later, never fewer)
+    print(f"flood: {sent} queries in {took:.1f} s, {replied} replies ({refused} refusals); "
+          f"{len(statuses)} statuses in {t1 - t0:.1f} s")
+    assert sent == 5000 and replied == sent
+    # at most the status rate (5 Hz in this configuration), plus one for the edges
+    assert len(statuses) <= 5 * (t1 - t0) + 1
+    assert after["trajectory_id"] == "c0" and after["command"] == "plan", after
+    assert after["state"] == "offboard" and not after["halted"]
+    assert_stream_ok(flight, report, (t0, t1))
+
+
+def test_fuzzed_and_oversized_messages_on_every_input(tmp_path):
+    """A reduced fuzz run (``rota-sitl fuzz`` runs the full one): hypothesis-made
+    hostile messages on every input, then the oversized ones that once stalled the
+    stream for seconds; the service never crashes, answers every query, and the
+    vehicle receives a stream without a gap over 100 ms, a jump or a fence breach."""
+    flight = Flight(workdir=str(tmp_path))
+    with flight:
+        figures, window = run_fuzz(flight, examples=int(os.environ.get("ROTA_FUZZ", "150")))
+    report = flight.sim.report
+    print(figures.summary())
+    assert not figures.crashed and flight.exit_code == 0, flight.log[-3000:]
+    assert figures.replies == figures.queries
+    assert sum(figures.tried.values()) >= 150
+    assert_stream_ok(flight, report, window)

@@ -1,0 +1,265 @@
+"""The PX4 tier: the service's promises checked against real PX4 SITL (SIH quadrotor, when
+``ROTA_PX4_BUILD`` names a build; otherwise skipped, saying why) and the ``sitl`` vehicle,
+with the same assertions. One flight per backend through the demo's forest, shared by the
+scenarios below (each first brings the vehicle back to "airborne, OFFBOARD, holding"
+whatever the one before left, so none depends on another's order); each backend's
+scenarios go to one test worker (``xdist_group``, tests/conftest.py). What the autopilot
+did is read from what it reports on its own GCS link (modes, arming, landed state),
+clearance from the simulator's ground truth (``HIL_STATE_QUATERNION``): sitl/tier.py,
+sitl/observer.py.
+
+Limits and why (measured spreads in docs/sitl.md, "The PX4 tier"):
+* clearance: the demo's planner keeps 1.0 m from trunks (sitl/demo.py); the tier asserts
+  no contact (true clearance > 0, the robot's radius subtracted);
+* a hold stops the vehicle within the brake (v^2 / 2a = 1.9 m at 2 m/s and 0.7 x 1.5 m/s^2)
+  plus PX4's lag behind its setpoint (up to 0.5 s at 2 m/s, docs/sitl.md): 3.5 m;
+* modes are PX4's HEARTBEAT at 20 Hz (the observer asks for it), so a failsafe is seen within
+  50 ms; PX4 also says "Failsafe" in a STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from sitl.proving import statuses_errors
+from sitl.px4 import px4_build, skip_reason
+from sitl.tier import TierFlight
+
+# (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
+#: The tier flies eight scenarios on each backend, real-time PX4 among them: about four
+#: minutes beside the rest of the suite, whose stream-timing tests it pushed past their
+#: budgets on this 2-core machine (two fresh-clone runs, 2026-11-27). Until it fits,
+#: it runs when asked: ROTA_PX4_TIER=1 (with ROTA_PX4_BUILD for its PX4 half).
+TIER_ON = os.environ.get("ROTA_PX4_TIER") == "1"
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300),
+              pytest.mark.skipif(not TIER_ON, reason="the PX4 tier runs with ROTA_PX4_TIER=1 "
+                                 "(tests/e2e/test_px4_tier.py says why)")]
+
+#: Stall shorter than PX4's offboard-loss timeout (1 s) minus the stream's margin
+SHORT_STALL_S = 0.6
+#: Stall past PX4's offboard-loss timeout
+LONG_STALL_S = 1.5
+#: How far a hold may end from where the vehicle was when it was commanded (module doc)
+HOLD_REACH_M = 3.5
+
+
+@pytest.fixture(scope="module", params=["sitl", "px4"])
+def flight(request):
+    """One flight per backend (tests/conftest.py sends each backend's tests to one worker)."""
+    backend = request.param
+    build = None
+    if backend == "px4":
+        build = px4_build()
+        if build is None:
+            pytest.skip(skip_reason())
+    t0 = time.monotonic()
+    with TierFlight(backend, build) as f:
+        f.t_boot = time.monotonic() - t0
+        yield f
+        print(f"{backend} tier: {time.monotonic() - t0:.1f} s in all, boot {f.t_boot:.1f} s, "
+              f"take-offs {f.phases}, retries {f.retries}")
+
+
+def run(f: TierFlight, scenario):
+    try:
+        return asyncio.run(scenario(f))
+    except BaseException:
+        print(f"{f.backend}: PX4 modes {f.observer.mode_changes()[-12:]}")
+        print(f"{f.backend}: PX4 said {f.observer.texts()[-12:]}")
+        print("service log:\n", f.log[-5000:])
+        raise
+
+
+def failsafes(f: TierFlight, since: float) -> list[str]:
+    return [t for t in f.observer.texts(since) if "ailsafe" in t]
+
+
+def test_forest_flight_with_a_replan(flight):
+    """The demo's flight: start to goal through the forest, replanned half-way; PX4 stays
+    in OFFBOARD and armed throughout, reaches the goal, touches no trunk (truth)."""
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        t0 = time.monotonic()
+        goal = await f.fly_toward("forest-0")
+        await f.under_way(0.4)
+        await f.fly_toward("forest-1", goal)
+        local = goal - f.home
+        for attempt in range(3):
+            s = await f.gs.wait_for(
+                lambda s: s.get("halted") or s.get("command") == "hold"
+                and s.get("trajectory_id") is None
+                and np.linalg.norm(np.asarray(f.gs.telemetry["position"]) - local) < 0.5, 60,
+                "the goal")
+            if not s.get("halted"):
+                break
+            # a stall of the busy machine halted the flight, as it must (in OFFBOARD): a
+            # planner starts again from the hold
+            f.retries.append(f"forest: {s['halted']}")
+            await f.gs.command_confirmed("start")
+            await f.fly_toward(f"forest-{attempt + 2}", goal)
+        return t0, time.monotonic()
+
+    t0, t1 = run(flight, scenario)
+    clear = flight.true_clearance(t0, t1)
+    print(f"{flight.backend}: forest flight {t1 - t0:.1f} s, true clearance {clear:.3f} m")
+    assert flight.modes(t0, t1) == ["OFFBOARD"] and flight.armed()
+    assert not failsafes(flight, t0)
+    assert clear > 0.0
+
+
+def test_hold_stops_the_vehicle_in_offboard(flight):
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("hold-0")
+        await f.under_way(0.2)
+        t0 = time.monotonic()
+        here = f.reported_world(t0 - 0.1)[-1]
+        reply = await f.gs.command_confirmed("hold")
+        await f.at_rest()
+        rest = f.reported_world(time.monotonic() - 0.3)
+        return t0, here, reply, rest.mean(axis=0), f.gs.status
+
+    t0, here, reply, rest, status = run(flight, scenario)
+    reach = float(np.linalg.norm(rest - here))
+    print(f"{flight.backend}: hold reached {reach:.2f} m from where it was commanded")
+    assert reply["ok"] and status["command"] == "hold" and status["trajectory_id"] is None
+    assert status["state"] == "offboard"
+    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
+    assert reach < HOLD_REACH_M
+
+
+def test_a_short_stall_holds_in_offboard(flight):
+    """Frozen for 0.6 s (under PX4's 1 s offboard-loss timeout minus the stream's margin):
+    the stream brakes to a hold from its last setpoint and PX4 never leaves OFFBOARD."""
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("stall-0")
+        await f.under_way(0.2)
+        t0, t1 = f.stall(SHORT_STALL_S)
+        halted = await f.gs.wait_for(lambda s: s.get("halted"), 10, "the halt")
+        await f.at_rest()
+        return t0, halted, f.gs.status
+
+    t0, halted, status = run(flight, scenario)
+    assert f"stalled for {SHORT_STALL_S:.1f}" in halted["halted"], halted["halted"]
+    assert status["state"] == "offboard" and status["streaming"]
+    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
+    assert not failsafes(flight, t0), flight.observer.texts(t0)
+
+
+def test_the_retime_worker_killed_mid_flight(flight):
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("worker-0")
+        await f.under_way(0.1)
+        t0 = time.monotonic()
+        pid = f.gs.status["supervision"]["worker_pids"]["re-time"][0]
+        os.kill(pid, signal.SIGKILL)
+        await f.gs.wait_for(lambda s: any("re-time worker killed by SIGKILL" in e["message"]
+                                          for e in s.get("events", ())), 5, "the report")
+        await f.gs.wait_for(lambda s: s["supervision"]["worker_pids"]["re-time"]
+                            and s["supervision"]["worker_pids"]["re-time"][0] != pid, 20,
+                            "a new worker")
+        # (the new worker's first re-time loads its compiled kernels: 5-40 s when busy)
+        await f.fly_toward("worker-1", timeout_s=90)
+        return t0, f.gs.status
+
+    t0, status = run(flight, scenario)
+    assert status["trajectory_id"] == "worker-1" and status["state"] == "offboard"
+    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
+
+
+def test_sigterm_in_offboard_hands_px4_to_hold(flight):
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("term-0")
+        await f.under_way(0.1)
+        t0 = time.monotonic()
+        code = f.stop_service()
+        t_hold = await f.until_px4(lambda o: o.mode()[0] == "AUTO_LOITER", 10, "Hold")
+        return t0, code, t_hold
+
+    t0, code, t_hold = run(flight, scenario)
+    print(f"{flight.backend}: PX4 in Hold {t_hold - t0:.2f} s after the SIGTERM")
+    assert code == 0
+    assert flight.modes(t0) == ["OFFBOARD", "AUTO_LOITER"] and flight.armed()
+    assert "PX4 Hold" in flight.logs[-1]
+    assert not failsafes(flight, t0)
+
+
+def test_offboard_loss_px4_failsafe_and_no_return_without_start(flight):
+    """Frozen for 1.5 s, past PX4's offboard-loss timeout: PX4's failsafe takes the
+    vehicle; the resumed service sends nothing that takes PX4 back into OFFBOARD, says why,
+    and a new start does."""
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("loss-0")
+        await f.under_way(0.1)
+        t0, t1 = f.stall(LONG_STALL_S)
+        s = await f.gs.wait_for(lambda s: not s.get("streaming") and s["state"] == "airborne",
+                                10, "the end of the stream")
+        # PX4 would be back in OFFBOARD within 30 ms of resumed setpoints (docs/sitl.md):
+        # watch for 2 s after the service's report
+        t_quiet = time.monotonic()
+        await asyncio.sleep(2.0)
+        t_start = time.monotonic()
+        await f.gs.command_confirmed("start")
+        t_back = await f.until_px4(lambda o: o.mode()[0] == "OFFBOARD", 10, "OFFBOARD")
+        return t0, t1, statuses_errors([s]), t_quiet, t_start, t_back
+
+    t0, t1, ended, t_quiet, t_start, t_back = run(flight, scenario)
+    modes = flight.modes(t0, t_start)
+    print(f"{flight.backend}: modes after the stall {modes}; failsafe texts "
+          f"{failsafes(flight, t0)}")
+    assert any(f"stalled for {LONG_STALL_S:.1f}" in e and "offboard-loss" in e
+               for e in ended), ended
+    assert modes[0] == "OFFBOARD" and "OFFBOARD" not in modes[1:], modes
+    assert flight.modes(t_start, t_back)[-1] == "OFFBOARD" and t_back > t_start
+    assert t_quiet - t0 > 0  # (ordering)
+    assert flight.armed()
+
+
+def test_land_and_disarm(flight):
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        t0 = time.monotonic()
+        await f.gs.command_confirmed("land")
+        t_down = await f.until_px4(lambda o: not o.mode()[1], 30, "disarmed")
+        return t0, t_down, f.gs.status
+
+    t0, t_down, status = run(flight, scenario)
+    print(f"{flight.backend}: landed and disarmed {t_down - t0:.1f} s after 'land'")
+    modes = flight.modes(t0)
+    assert "AUTO_LAND" in modes and not flight.armed(), modes
+    # (as the land command's confirmation: "not_ready" while PX4's checks settle after it)
+    assert status["state"] in ("ready", "not_ready") and not status["armed"]
+    assert flight.truth_world(t_down - 0.5)[:, 2].max() < 0.3
+
+
+def test_a_kill_switch_in_the_air_takes_the_service_out_of_offboard(flight):
+    async def scenario(f: TierFlight):
+        await f.ready_to_fly()
+        await f.fly_toward("kill-0")
+        await f.under_way(0.1)
+        t0 = time.monotonic()
+        f.observer.kill()
+        s = await f.gs.wait_for(lambda s: s["state"] in ("ready", "not_ready"), 10,
+                                "the service")
+        t_seen = time.monotonic()
+        await f.until_px4(lambda o: o.seen.landed and o.seen.landed[-1][1] == 1, 20,
+                          "the vehicle on the ground")
+        land, arm = await f.gs.command("land"), await f.gs.command("arm")
+        return t0, t_seen, s, land, arm
+
+    t0, t_seen, status, land, arm = run(flight, scenario)
+    print(f"{flight.backend}: the service out of offboard {t_seen - t0:.2f} s after the kill")
+    assert "PX4 reports the vehicle disarmed" in " ".join(statuses_errors([status]))
+    assert not status["streaming"] and not status["armed"]
+    assert land["ok"] and "nothing to land" in land["message"], land
+    assert arm["ok"], arm["message"]
