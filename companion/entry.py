@@ -11,7 +11,6 @@ from __future__ import annotations
 import signal
 import sys
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 
 INTERRUPTED = 130
 
@@ -20,6 +19,8 @@ def package_version() -> str:
     """rota-companion's version as installed ("unknown" when run from a source tree),
     for every CLI's ``--version`` (the library's own CLI has its copy: ``rota`` cannot
     import the service)."""
+    from importlib.metadata import PackageNotFoundError, version  # (not before the shim)
+
     try:
         return version("rota-companion")
     except PackageNotFoundError:  # pragma: no cover - a source tree

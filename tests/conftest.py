@@ -23,11 +23,22 @@ def example(tmp_path_factory):
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(config, items):
     """The PX4 tier's scenarios share one flight per backend: every test of one backend
-    goes to the same worker (``--dist loadgroup``), the two backends to either."""
+    goes to the same worker (``--dist loadgroup``), the two backends to either. So do
+    the tests of a module that share a module-scoped fixture."""
     for item in items:
         backend = getattr(getattr(item, "callspec", None), "params", {}).get("flight")
         if backend is not None:
             item.add_marker(pytest.mark.xdist_group(f"tier-{backend}"))
+        elif _uses_a_module_fixture(item):
+            # one worker for the module: its fixture (often a whole flight) is made once,
+            # and tests that read what an earlier one flew find it
+            item.add_marker(pytest.mark.xdist_group(f"module-{item.module.__name__}"))
+
+
+def _uses_a_module_fixture(item) -> bool:
+    info = getattr(item, "_fixtureinfo", None)
+    return info is not None and any(defs[-1].scope == "module"
+                                    for defs in info.name2fixturedefs.values() if defs)
 
 
 @pytest.fixture(autouse=True)

@@ -38,6 +38,8 @@ from companion.recording.foxglove import (
 log = logging.getLogger("rota.gs.foxglove")
 
 DEFAULT_PORT = 8765
+#: A status event's level as a log level (an audit is a change made at run time)
+EVENT_LEVELS = {"error": "ERROR", "warning": "WARNING", "audit": "WARNING", "event": "INFO"}
 
 
 class LiveView:
@@ -56,12 +58,11 @@ class LiveView:
         self.dropped = 0
         # every channel before any client: advertised to each on connecting
         for topic, kind in TOPICS.items():
-            if topic != "/foxglove/log":  # events are in the status, not shown live yet
-                s = schema_of(kind)
-                self._channels[topic] = foxglove.Channel(
-                    topic, schema=foxglove.Schema(name=s.name, encoding=s.encoding,
-                                                  data=s.data),
-                    message_encoding=s.message_encoding, context=self.context)
+            s = schema_of(kind)
+            self._channels[topic] = foxglove.Channel(
+                topic, schema=foxglove.Schema(name=s.name, encoding=s.encoding, data=s.data),
+                message_encoding=s.message_encoding, context=self.context)
+        self._seq = 0  # the newest status event shown (the service numbers them)
         self.server = foxglove.start_server(name=name or f"rota {gs.vehicle}", host=host,
                                             port=port, context=self.context,
                                             server_listener=_Listener(self._resend))
@@ -96,6 +97,23 @@ class LiveView:
                                   or status.get("command") or ""}, now)
         if name in ("telemetry", "retimed"):
             self.put(name, obj, now)
+        if name == "status":
+            self._events(obj)
+
+    def _events(self, status: dict[str, Any]) -> None:
+        """The status's events not shown yet, to ``/foxglove/log`` as the record has the
+        service's log (a restarted service numbers from 1 again: shown from there)."""
+        events = [e for e in status.get("events") or () if isinstance(e, dict)
+                  and isinstance(e.get("seq"), int)]
+        if events and events[-1]["seq"] < self._seq:
+            self._seq = 0
+        for e in events:
+            if e["seq"] > self._seq:
+                self._seq = e["seq"]
+                level = EVENT_LEVELS.get(str(e.get("level")), "INFO")
+                self.put("log", {"level": level, "message": str(e.get("message", "")),
+                                 "logger": f"rota.companion ({e.get('source', '')})"},
+                         float(e.get("stamp") or time.time()))
 
     def _on_map(self, sample: Any) -> None:
         self.put("map", sample.payload.to_bytes(), time.time())

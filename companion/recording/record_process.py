@@ -145,7 +145,7 @@ class RecordProcess:
                 self._child, files = rest
                 self.files = [Path(f) for f in files]
         if not self._closing:
-            self._proc.join(1.0)
+            self._proc.join(5.0)  # (it has closed its pipe: it is exiting)
             self.error = f"the record's writer process ended ({describe_exit(self._proc.exitcode)})"
             self.on_error(f"flight record stopped: {self.error}; the flight goes on unrecorded")
 

@@ -91,6 +91,12 @@ class Ros2Link:
                 for ep in [ep for _, ep, _ in ins] + list(outs.values()))}
             self._objs.append(liveliness.declare_subscriber(
                 f"@ros2_lv/{settings.domain_id}/**", self._on_token, history=True))
+        else:  # a bridge announces each route it makes, with its ROS type
+            self._own = f"@/{session.zid()}/"
+            self._routes = {("MP" if ep.kind == "MS" else "MS", self.layout.key(ep)): ep
+                            for ep in [ep for _, ep, _ in ins] + list(outs.values())}
+            self._objs.append(liveliness.declare_subscriber(
+                "@/*/@ros2_lv/**", self._on_route, history=True))
         log.info("ROS 2 (%s): in %s, out %s", self.layout.name,
                  ", ".join(self.layout.sub_key(ep) for _, ep, _ in ins) or "-",
                  ", ".join(self.layout.key(ep) for ep in outs.values()) or "-")
@@ -140,6 +146,30 @@ class Ros2Link:
         self._warn(f"ROS 2: node {node} is a {peer} {role} of {ep.topic} and the service "
                    f"speaks {'Humble' if want == HUMBLE_HASH else 'Jazzy and later'}: they "
                    f"cannot exchange messages; {fix}", "ros2")
+
+    def _on_route(self, sample: zenoh.Sample) -> None:
+        """A bridge made a route: if it carries one of the service's inputs or outputs
+        with another ROS type, say so once (the bridge keeps the first type it saw for
+        a topic, so the two never exchange a message, and nothing else would tell)."""
+        token = str(sample.key_expr)
+        if (sample.kind != zenoh.SampleKind.PUT or token in self._warned
+                or token.startswith(self._own)):
+            return
+        parts = token.split("/")  # @ / <zid> / @ros2_lv / <MP|MS> / <key> / <type> / ...
+        if len(parts) < 6:
+            return
+        slash = self.layout.SLASH
+        kind, key, got = parts[3], parts[4].replace(slash, "/"), parts[5].replace(slash, "/")
+        ep = self._routes.get((kind, key))
+        if ep is None or got == ep.typename:
+            return
+        self._warned.add(token)
+        role = "publishes" if kind == "MP" else "subscribes to"
+        fix = (f'set [ros2] bspline_type = "{got}"' if ep.typename == self.settings.bspline_type
+               and ep.kind == "MS" else f"the service's is {ep.typename}")
+        self._warn(f"ROS 2: a node behind zenoh-bridge-ros2dds {role} {ep.topic} as {got} and "
+                   f"the service {'reads' if ep.kind == 'MS' else 'writes'} {ep.typename}: "
+                   f"they cannot exchange messages; {fix}", "ros2")
 
     # ------------------------------------------------------------ outputs
     def put(self, name: str, cdr: bytes) -> None:

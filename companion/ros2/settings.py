@@ -13,9 +13,10 @@ import re
 from dataclasses import dataclass
 
 LAYOUTS = ("rmw_zenoh", "ros2dds")
-#: ROS 2 distributions by what their rmw_zenoh writes for a type hash: "humble"
-#: (TypeHashNotSupported) or "jazzy" (RIHS01 hashes: Jazzy, Kilted, Rolling).
-DISTROS = ("humble", "jazzy")
+#: The maintained ROS 2 distributions. Their rmw_zenoh differ in one thing the service
+#: meets: what it writes for a type hash, "humble" TypeHashNotSupported, the others
+#: RIHS01 hashes (Jazzy, Kilted and Rolling speak alike).
+DISTROS = ("humble", "jazzy", "kilted", "rolling")
 #: Bspline message definitions built in (``bspline_msg``); anything else is a file path.
 BSPLINE_VARIANTS = ("ego-planner", "ego-planner-swarm", "fast-planner")
 
@@ -32,7 +33,7 @@ class Ros2Settings:
     enabled: bool = False  # subscribe and publish ROS topics on the service's Zenoh session
     layout: str = "rmw_zenoh"  # "rmw_zenoh" (ROS 2 with RMW_IMPLEMENTATION=rmw_zenoh_cpp)
     #                            or "ros2dds" (DDS-based ROS 2 behind zenoh-bridge-ros2dds)
-    distro: str = "jazzy"  # the planner's ROS 2: "jazzy" (also Kilted, Rolling) or "humble"
+    distro: str = "jazzy"  # the planner's ROS 2: "humble", "jazzy", "kilted" or "rolling"
     domain_id: int = 0  # ROS_DOMAIN_ID (part of every rmw_zenoh key expression)
     namespace: str = ""  # rmw_zenoh: the service node's namespace (resolves relative
     #                      topics); ros2dds: the bridge's `namespace` setting (prefixes all)
@@ -64,7 +65,7 @@ def check(s: Ros2Settings) -> None:
     if s.layout not in LAYOUTS:
         fail("layout", f"must be one of {', '.join(LAYOUTS)}")
     if s.distro not in DISTROS:
-        fail("distro", "must be humble or jazzy (jazzy also for Kilted and Rolling)")
+        fail("distro", f"must be one of {', '.join(DISTROS)}")
     if not 0 <= s.domain_id <= 232:
         fail("domain_id", "must be a ROS domain id from 0 to 232")
     if not _NAMESPACE.fullmatch(s.namespace):

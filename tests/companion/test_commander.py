@@ -89,11 +89,11 @@ class FakeReplanner:
         return 0.0
 
 
-def make() -> tuple[Commander, FakeAutopilot, Reporter]:
+def make(cfg=CFG) -> tuple[Commander, FakeAutopilot, Reporter]:  # noqa: ANN001
     ap, report = FakeAutopilot(), Reporter()
-    stream = SetpointStream(lambda: CFG, ap, report,
+    stream = SetpointStream(lambda: cfg, ap, report,
                             on_halt=lambda why, ended: commander.halted(why, ended))
-    commander = Commander(lambda: CFG, ap, stream, FakeReplanner(), report)
+    commander = Commander(lambda: cfg, ap, stream, FakeReplanner(), report)
     commander.check()
     return commander, ap, report
 
@@ -157,8 +157,8 @@ def test_one_state_changing_command_at_a_time_but_hold_land_abort_never_wait():
     asyncio.run(main())
 
 
-async def _flying() -> tuple[Commander, FakeAutopilot, Reporter]:
-    c, ap, report = make()
+async def _flying(cfg=CFG) -> tuple[Commander, FakeAutopilot, Reporter]:  # noqa: ANN001
+    c, ap, report = make(cfg)
     in_the_air(ap)
     c.check()
     await c.run("start")
@@ -215,20 +215,23 @@ def test_the_tracking_error_is_measured_against_the_setpoints_sent_before_the_po
     """A position is compared with the setpoints sent in the ``tracking_lag_s`` before it
     arrived, not with later ones it could not yet follow: on a busy computer it is read
     a while after it arrived (until ``link_timeout_s`` the link counts as up)."""
+    lag = 0.3  # s: a short lag, so that a position older than it is far from link loss
+    cfg = from_dict({"stream": {"prestream_s": 0.5}, "safety": {"tracking_lag_s": lag}})
+
     async def main():
-        c, ap, _ = await _flying()
+        c, ap, _ = await _flying(cfg)
         t = np.linspace(0.0, 10.0, 11)
         line = SampledTrajectory(t=t, p=np.column_stack([t, 0 * t, 0 * t + 2.0]))
-        now = time.monotonic()
-        c.stream.source = Plan("line", retime(RetimeInput(trajectory=line,
-                                                          limits=Limits(2.0, 2.0))), now)
+        result = retime(RetimeInput(trajectory=line, limits=Limits(2.0, 2.0)))
+        now = time.monotonic()  # (after the re-time: it may take a while on a busy machine)
+        c.stream.source = Plan("line", result, now)
         speed, period = 10.0, 0.02  # what was sent: x at 10 m/s for the last 4 s
         for k in range(201):
             c.stream.sent.append(now - 4.0 + k * period, [speed * k * period, 0.0, 2.0])
         c.stream.last_sent, c.stream.last_send_time = c.stream.commanded(now), now
-        age = 1.2  # s: over the lag, under the link timeout (on a setpoint's send time)
-        assert CFG.safety.tracking_lag_s < age < CFG.mavlink.link_timeout_s
-        assert (age - CFG.safety.tracking_lag_s) * speed > CFG.safety.max_tracking_error_m
+        age = 0.5  # s: over the lag, 1 s under the link timeout (on a setpoint's send time)
+        assert lag < age and age + 0.9 < cfg.mavlink.link_timeout_s
+        assert (age - lag) * speed > cfg.safety.max_tracking_error_m
         # on track when it arrived: (age - lag) x speed behind the setpoints of the last lag
         ap.telemetry.position = np.array([speed * (4.0 - age), 0.0, 2.0])
         ap.telemetry.position_time = now - age

@@ -30,10 +30,22 @@ def test_defaults_are_off_and_valid():
     ({"max_cloud_points": 0}, r"\[ros2\] max_cloud_points"),
     ({"retimed_rate_hz": -1.0}, r"\[ros2\] retimed_rate_hz"),
     ({"topic": "/x"}, r"\[ros2\] topic: unknown setting"),
+    ({"distro": "iron"}, r"\[ros2\] distro: must be one of humble, jazzy, kilted, rolling"),
 ])
 def test_bad_settings_are_refused_naming_them(values, words):
     with pytest.raises(ConfigError, match=words):
         from_dict({"ros2": values})
+
+
+@pytest.mark.parametrize("distro", ["jazzy", "kilted", "rolling"])
+def test_the_distros_after_humble_speak_alike(distro):
+    """Jazzy, Kilted and Rolling: the same RIHS01 keys (only Humble's differ)."""
+    from companion.ros2.types import HUMBLE_HASH, type_hash
+
+    cfg = from_dict({"ros2": {"distro": distro}}).ros2
+    assert type_hash("std_msgs/msg/String", distro=cfg.distro) == \
+        type_hash("std_msgs/msg/String", distro="jazzy") != HUMBLE_HASH
+    assert type_hash("std_msgs/msg/String", distro="humble") == HUMBLE_HASH
 
 
 def test_a_bspline_msg_file_without_the_needed_fields_is_refused(tmp_path):

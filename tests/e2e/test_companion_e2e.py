@@ -40,6 +40,7 @@ from sitl.mavsdk_util import free_udp_port
 from sitl.process import SimProcess
 from sitl.stream_checks import check_stream, fastest_yaw_rate
 from sitl.world import get_world
+from tests.helpers.foxglove import decode_all
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 SPEED = 2.0
@@ -135,6 +136,11 @@ def test_three_replans_reach_the_goal_without_collision_or_jumps_and_are_recorde
     assert service.recorder.dropped == 0
     got = list(read(files))
     kinds = Counter(c for c, _, _ in got)
+    # the whole flight decodes with the published schemas (Foxglove opens each part)
+    parts = [decode_all([f]) for f in files]
+    assert all({"/foxglove/map", "/foxglove/plan"} <= set(part) for part in parts)
+    assert {"/foxglove/setpoint", "/foxglove/vehicle", "/tf", "/plot/command",
+            "/plot/vehicle", "/foxglove/log"} <= set().union(*parts)
     # (a replan the service refused is planned again: every one sent is recorded)
     assert kinds["trajectory"] == result["trajectories_published"] >= 4 and kinds["map"] == 1
     # plan-0 is re-timed when it arrives and again when offboard begins

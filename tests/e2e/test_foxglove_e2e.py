@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 
+import jsonschema
 import numpy as np
 import pytest
 import websockets
@@ -164,7 +165,9 @@ def test_the_live_server_serves_the_flight_to_a_websocket_client(killed_flight):
             got.setdefault(topic, []).append(dec(payload))
         else:
             assert ch["encoding"] == "json" and ch["schemaEncoding"] == "jsonschema"
-            got.setdefault(topic, []).append(json.loads(payload))
+            obj = json.loads(payload)
+            jsonschema.validate(obj, json.loads(ch["schema"]))  # as advertised
+            got.setdefault(topic, []).append(obj)
     (update,) = got["/foxglove/map"][:1]
     assert len(update.entities[0].cubes) > 100  # the forest's trees
     plan = got["/foxglove/plan"][-1].entities[0]
@@ -177,6 +180,9 @@ def test_the_live_server_serves_the_flight_to_a_websocket_client(killed_flight):
     assert {c["v_max"] for c in cmd} == {SPEED} and max(c["speed"] for c in cmd) > 0.5
     assert any(c["plan"] == "plan-0" for c in cmd)
     assert any(v["tracking_error"] is not None for v in got["/plot/vehicle"])
+    # the service's events, as the record has its log
+    logs = [m.message for m in got.get("/foxglove/log", ())]
+    assert any("autopilot connected" in m for m in logs), logs
 
 
 def test_a_service_killed_mid_flight_leaves_a_record_readable_to_its_last_chunk(
