@@ -99,7 +99,8 @@ def test_an_unknown_type_is_refused_with_the_known_ones_named(tmp_path):
     f = tmp_path / "Bspline.msg"
     f.write_text(UPSTREAM_EGO)  # with its own definition it is fine
     assert cfg(bspline_type="my_planner/msg/Bspline", bspline_msg=str(f)).ros2.bspline_msg
-    with pytest.raises(ConfigError, match=r"\[ros2\] distro: must be humble or jazzy"):
+    with pytest.raises(ConfigError,
+                       match=r"\[ros2\] distro: must be one of humble, jazzy, kilted, rolling"):
         cfg(distro="iron")
 
 
