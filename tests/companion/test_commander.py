@@ -190,14 +190,21 @@ def test_a_lost_link_stops_the_stream_and_says_a_new_start_is_needed():
     asyncio.run(main())
 
 
+def _flying_a_line(c: Commander) -> float:
+    """Fly a 10 m line along x at 2 m high from now; returns now (taken after the
+    re-time, which may take a while on a busy machine)."""
+    t = np.linspace(0.0, 10.0, 11)
+    line = SampledTrajectory(t=t, p=np.column_stack([t, 0 * t, 0 * t + 2.0]))
+    result = retime(RetimeInput(trajectory=line, limits=Limits(2.0, 2.0)))
+    now = time.monotonic()
+    c.stream.source = Plan("line", result, now)
+    return now
+
+
 def test_a_tracking_error_over_the_limit_brakes_along_the_path():
     async def main():
         c, ap, _ = await _flying()
-        t = np.linspace(0.0, 10.0, 11)
-        line = SampledTrajectory(t=t, p=np.column_stack([t, 0 * t, 0 * t + 2.0]))
-        now = time.monotonic()
-        c.stream.source = Plan("line", retime(RetimeInput(trajectory=line,
-                                                          limits=Limits(2.0, 2.0))), now)
+        now = _flying_a_line(c)
         sent = c.stream.commanded(now)
         c.stream.sent.append(now, sent.position)
         c.stream.last_sent, c.stream.last_send_time = sent, now
@@ -220,11 +227,7 @@ def test_the_tracking_error_is_measured_against_the_setpoints_sent_before_the_po
 
     async def main():
         c, ap, _ = await _flying(cfg)
-        t = np.linspace(0.0, 10.0, 11)
-        line = SampledTrajectory(t=t, p=np.column_stack([t, 0 * t, 0 * t + 2.0]))
-        result = retime(RetimeInput(trajectory=line, limits=Limits(2.0, 2.0)))
-        now = time.monotonic()  # (after the re-time: it may take a while on a busy machine)
-        c.stream.source = Plan("line", result, now)
+        now = _flying_a_line(c)
         speed, period = 10.0, 0.02  # what was sent: x at 10 m/s for the last 4 s
         for k in range(201):
             c.stream.sent.append(now - 4.0 + k * period, [speed * k * period, 0.0, 2.0])

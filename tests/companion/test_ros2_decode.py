@@ -28,7 +28,7 @@ from tests.helpers.ros2 import (
     CFG,
     CPS,
     DT,
-    EGO_MSG,
+    SWARM_MSG,
     TS,
     T,
     bspline_cdr,
@@ -38,8 +38,6 @@ from tests.helpers.ros2 import (
     path_cdr,
     store,
 )
-
-SWARM_MSG = "int32 drone_id\n\n" + EGO_MSG
 
 
 # ------------------------------------------------------------------ types

@@ -21,25 +21,13 @@ from companion.ros2.link import Ros2Link
 from companion.ros2.settings import Ros2Settings
 from companion.ros2.types import STRING, bspline_definition, type_hash
 from companion.settings.config import ConfigError, from_dict
-from tests.helpers.ros2 import CPS, DT, STRING_HASH, ZID, Inbox, RosPeer
+from tests.helpers.ros2 import CPS, DT, EGO_MSG, STRING_HASH, SWARM_MSG, ZID, Inbox, RosPeer
 
 HUMBLE = "TypeHashNotSupported"
-# The planners' Bspline.msg as their repositories have them (ROS 1 `time` written as
-# ROS 2's builtin_interfaces/Time, as their ROS 2 ports do)
-UPSTREAM_EGO = """int32 order
-int64 traj_id
-builtin_interfaces/Time start_time
-
-float64[] knots
-geometry_msgs/Point[] pos_pts
-
-float64[] yaw_pts
-float64 yaw_dt
-"""
-UPSTREAM = {"ego_planner/msg/Bspline": UPSTREAM_EGO,  # ZJU-FAST-Lab/ego-planner
-            "plan_manage/msg/Bspline": UPSTREAM_EGO,  # HKUST-Aerial-Robotics/Fast-Planner
+UPSTREAM = {"ego_planner/msg/Bspline": EGO_MSG,  # ZJU-FAST-Lab/ego-planner
+            "plan_manage/msg/Bspline": EGO_MSG,  # HKUST-Aerial-Robotics/Fast-Planner
             # ZJU-FAST-Lab/ego-planner-swarm, src/planner/traj_utils/msg/Bspline.msg
-            "traj_utils/msg/Bspline": "int32 drone_id\n\n" + UPSTREAM_EGO}
+            "traj_utils/msg/Bspline": SWARM_MSG}
 
 
 def planner_cdr(typename: str, **extra) -> bytes:
@@ -97,7 +85,7 @@ def test_an_unknown_type_is_refused_with_the_known_ones_named(tmp_path):
                        r"Bspline, plan_manage/msg/Bspline.*bspline_msg"):
         cfg(bspline_type="my_planner/msg/Bspline")
     f = tmp_path / "Bspline.msg"
-    f.write_text(UPSTREAM_EGO)  # with its own definition it is fine
+    f.write_text(EGO_MSG)  # with its own definition it is fine
     assert cfg(bspline_type="my_planner/msg/Bspline", bspline_msg=str(f)).ros2.bspline_msg
     with pytest.raises(ConfigError,
                        match=r"\[ros2\] distro: must be one of humble, jazzy, kilted, rolling"):

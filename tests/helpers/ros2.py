@@ -13,6 +13,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from companion.settings.config import from_dict
 
+# The planners' Bspline.msg as their repositories have them (ROS 1 `time` written as
+# ROS 2's builtin_interfaces/Time, as their ROS 2 ports do): EGO-Planner's and
+# Fast-Planner's, and ego-planner-swarm's with its drone id
 EGO_MSG = """int32 order
 int64 traj_id
 builtin_interfaces/Time start_time
@@ -23,6 +26,7 @@ geometry_msgs/Point[] pos_pts
 float64[] yaw_pts
 float64 yaw_dt
 """
+SWARM_MSG = "int32 drone_id\n\n" + EGO_MSG
 
 
 BSPLINE = "traj_utils/msg/Bspline"
