@@ -54,7 +54,7 @@ from sitl.batch import BatchWorlds, SetpointTable, simulate
 from sitl.dynamics import PX4_SIH_QUAD, QuadrotorParams
 from sitl.estimation import DRIFT, EstimationErrorParams
 from sitl.experiment_stats import CellResult, cell_stats, rota_arm, uniform_arm
-from sitl.planner import PlanningError, plan
+from sitl.planner import DEFAULT_CLEARANCE, PlanningError, plan
 from sitl.world import World, forest
 
 FloatArray = NDArray[np.float64]
@@ -90,6 +90,7 @@ class ExperimentConfig:
             even at rest; the companion refuses to fly them): ``"exclude"`` leaves them out
             of every arm, ``"fallback"`` flies ROTA's fallback timing (uniformly slowed).
         size: map edge (m).
+        clearance: the reference planner's clearance beyond the robot's radius (m).
     """
 
     densities: tuple[float, ...] = (0.025, 0.043, 0.063)
@@ -112,6 +113,7 @@ class ExperimentConfig:
     rejected: str = "exclude"
     size: float = 20.0
     vehicle: str = "px4-sih"
+    clearance: float = DEFAULT_CLEARANCE
 
     def __post_init__(self) -> None:
         if self.vehicle not in VEHICLES:
@@ -222,7 +224,7 @@ def run_task(config: ExperimentConfig, density_index: int, trials: Sequence[int]
             rec["world_seed"].append(world_seed(cfg.seed, density_index, trial))
             rec["noise_seed"].append(noise_seed(cfg.seed, density_index, vi, trial))
             try:
-                traj = plan(w, v_max, a_max)
+                traj = plan(w, v_max, a_max, clearance=cfg.clearance)
             except PlanningError as exc:
                 _nan_record(rec, cfg, "no-plan", str(exc))
                 continue

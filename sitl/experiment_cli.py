@@ -6,6 +6,7 @@ Examples:
   rota-sitl experiment collision-rate                            # the full grid, 500 trials/cell
   rota-sitl experiment collision-rate --trials 4 --out /tmp/t1   # a quick check
   rota-sitl experiment memory-dose --seed 1 --trials 300         # the memory time's rule
+  rota-sitl experiment px4 --px4 ../shared/px4-sitl              # ROTA and controls on PX4
 
 Exit status: 0 the run finished (also when the hypothesis fails: the table says
 whether it holds); 2 bad arguments; 130 interrupted (Ctrl-C).
@@ -14,6 +15,7 @@ whether it holds); 2 bad arguments; 130 interrupted (Ctrl-C).
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -25,9 +27,11 @@ from sitl.bench import add_bench_parser
 from sitl.entry import FLIGHTS
 from sitl.estimation import DRIFT, KINDS, EstimationErrorParams
 from sitl.experiment import VEHICLES, ExperimentConfig, run_experiment
+from sitl.experiment_px4 import Px4ExperimentConfig
 from sitl.experiment_report import write_dose, write_outputs
 from sitl.flights_cli import add_flight_commands
 from sitl.flights_cli import main as flights_main
+from sitl.px4 import PX4_ENV
 
 #: The memory times of the dose-response (s).
 DOSE_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
@@ -77,6 +81,8 @@ def _common(p: argparse.ArgumentParser, d: ExperimentConfig) -> None:
     p.add_argument("--rejected", choices=("exclude", "fallback"), default=d.rejected,
                    help="trials whose path ROTA rejects: leave out of every arm (default) or "
                         "fly ROTA's fallback timing")
+    p.add_argument("--clearance", type=float, default=d.clearance,
+                   help="the reference planner's clearance beyond the robot's radius (m)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -114,6 +120,20 @@ def _parser() -> argparse.ArgumentParser:
     dose.add_argument("--memories", type=_floats, default=DOSE_GRID,
                       help="comma-separated memory times (s)")
     dose.add_argument("--out", default="dose-out", help="output directory")
+    p = Px4ExperimentConfig()
+    px4 = which.add_parser(
+        "px4", help="the planner's timing, ROTA and the equal-time uniform slow-down flown "
+                    "on real PX4 SITL, judged on SIH's ground truth (docs/table1.md)")
+    px4.add_argument("--px4", metavar="BUILD_DIR", default=os.environ.get(PX4_ENV),
+                     help=f"the PX4 SITL build (default: ${PX4_ENV})")
+    px4.add_argument("--trials", type=int, default=p.trials, help="forests, each flown per arm")
+    px4.add_argument("--seed", type=int, default=p.seed, help="experiment seed")
+    px4.add_argument("--workers", type=int, default=p.workers,
+                     help="PX4 instances flying at once")
+    px4.add_argument("--clearance", type=float, default=p.clearance,
+                     help="the planner's clearance beyond the robot's radius (m)")
+    px4.add_argument("--speed", type=float, default=p.speed, help="v_max (m/s)")
+    px4.add_argument("--out", default="px4-out", help="output directory")
     return ap
 
 
@@ -147,13 +167,36 @@ def _errors(args: argparse.Namespace) -> tuple[EstimationErrorParams, ...]:
     return tuple(out)
 
 
+def _command(argv: Sequence[str] | None) -> str:
+    shown = list(sys.argv[1:] if argv is None else argv)
+    return "rota-sitl " + " ".join(shlex.quote(a) for a in shown)
+
+
+def _run_px4(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    from sitl.experiment_px4 import run
+    from sitl.experiment_px4_report import write
+
+    if not args.px4:
+        raise ValueError(f"--px4: name a PX4 SITL build directory (or set {PX4_ENV})")
+    cfg = Px4ExperimentConfig(trials=args.trials, seed=args.seed, workers=args.workers,
+                              clearance=args.clearance, speed=args.speed)
+    result = run(cfg, args.px4, lambda s: print(s, file=sys.stderr, flush=True))
+    paths = write(result, args.out, _command(argv))
+    print(paths["md"].read_text())
+    print(f"wrote {paths['md']}, {paths['png']}, {paths['json']}")
+    return 0
+
+
 def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    if args.name == "px4":
+        return _run_px4(args, argv)
     for name in ("trials", "workers", "chunk"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name}: must be at least 1, got {getattr(args, name)}")
     common = dict(accel_ratio=args.accel_ratio, trials=args.trials, seed=args.seed,
                   workers=args.workers, chunk=args.chunk, errors=_errors(args),
-                  d_th=args.d_th, rejected=args.rejected, vehicle=args.vehicle)
+                  d_th=args.d_th, rejected=args.rejected, vehicle=args.vehicle,
+                  clearance=args.clearance)
     if args.name == "collision-rate":
         memories = (0.0,) if args.memory == 0.0 else (0.0, args.memory)
         cfg = ExperimentConfig(densities=args.densities, speeds=args.speeds,
@@ -163,8 +206,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
                                memories=tuple(sorted(args.memories)), **common)
     progress = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     result = run_experiment(cfg, progress)
-    shown = list(sys.argv[1:] if argv is None else argv)
-    command = "rota-sitl " + " ".join(shlex.quote(a) for a in shown)
+    command = _command(argv)
     write = write_outputs if args.name == "collision-rate" else write_dose
     paths = write(result, args.out, command)
     with open(paths["md"]) as f:

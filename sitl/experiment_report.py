@@ -69,7 +69,7 @@ def markdown_table(result: ExperimentResult, command: str | None = None) -> str:
     lines = [f"Command: `{command}`", ""] if command else []
     lines += [
         f"Seed {cfg.seed}, {cfg.trials} trials per cell, vehicle {cfg.vehicle}, "
-        f"a_max = {cfg.accel_ratio:g} * v_max, "
+        f"a_max = {cfg.accel_ratio:g} * v_max, planner clearance {cfg.clearance:g} m, "
         f"memory times {', '.join(f'{t:g}' for t in cfg.memories)} s; error models: "
         f"{_errors_text(result)}"
         + ("" if cfg.d_th is None else f"; ROTA braking threshold d_th = {cfg.d_th:g} m")

@@ -105,7 +105,11 @@ class SetpointSender:
         self._proc = proc
         self.port = port  # the sender's UDP port on 127.0.0.1 (MAVSDK: udpout to it)
         self._buf = b""
+        self._killed = ""  # why this side killed the process, if it did
         os.set_blocking(proc.stdout.fileno(), False)
+        # never wait on the pipe: a sender that stops reading (stopped, or blocked on its
+        # own report pipe) must not hold up the stream's thread (:meth:`_write`)
+        os.set_blocking(proc.stdin.fileno(), False)
 
     @classmethod
     def spawn(cls, boot: float, source: tuple[int, int], target: tuple[int, int],
@@ -146,7 +150,8 @@ class SetpointSender:
     def exit_reason(self) -> str:
         """Why the process ended ("" while it runs)."""
         code = self._proc.poll()
-        return "" if code is None else f"the setpoint sender process exited (code {code})"
+        why = f"; killed: {self._killed}" if self._killed else ""
+        return "" if code is None else f"the setpoint sender process exited (code {code}{why})"
 
     def put(self, at: float, not_after: float, max_silence: float, max_shift: float,
             values: tuple[float, ...]) -> None:
@@ -161,8 +166,18 @@ class SetpointSender:
         self._write(RECORD.pack(math.nan, *([0.0] * 13)))
 
     def _write(self, data: bytes) -> None:
+        """One record into the pipe, at once or not at all (a record is far below
+        PIPE_BUF, so a write is atomic). A full pipe means the process stopped reading
+        (twelve seconds of setpoints wait in it): it is killed, so that the autopilot's
+        watcher restarts it, and the caller sends from its own thread meanwhile."""
         try:
             os.write(self._proc.stdin.fileno(), data)
+        except BlockingIOError:
+            self._killed = "it had stopped reading its pipe"
+            with contextlib.suppress(OSError):
+                self._proc.kill()
+            raise SenderError("the setpoint sender stopped reading its pipe (full); "
+                              "killed, to be restarted") from None
         except (OSError, ValueError) as exc:  # (ValueError: the pipe closed here)
             raise SenderError(self.exit_reason() or f"the setpoint sender's pipe: {exc}") from exc
 

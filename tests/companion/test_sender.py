@@ -147,6 +147,19 @@ def test_a_dead_sender_says_so():
     sender.close()
 
 
+def test_a_sender_that_stops_reading_is_killed_not_waited_for(link):
+    # the stream's thread writes into the pipe: a stopped sender must never block it
+    sender, _, _ = link
+    os.kill(sender._proc.pid, signal.SIGSTOP)
+    t0 = time.monotonic()
+    with pytest.raises(SenderError, match="stopped reading its pipe"):
+        for _ in range(2000):  # the pipe holds 585 records (64 KiB)
+            sender.put(time.monotonic() + 60.0, math.inf, math.inf, 0.0, VALUES)
+    assert time.monotonic() - t0 < 5.0  # (milliseconds; blocked forever before)
+    assert sender._proc.wait(5) == -signal.SIGKILL
+    assert "killed: it had stopped reading its pipe" in sender.exit_reason()
+
+
 def test_nothing_is_sent_while_the_service_is_stopped():
     """The sender's parent here is this test process; a child of it stands in for the
     service: a sender spawned from a process that then stops itself sends nothing."""

@@ -140,6 +140,7 @@ def test_web_page_and_cli_fly_a_flight(live):
     driver = None
     try:
         driver = _browser(live.tmp)
+        from selenium.common.exceptions import TimeoutException
         from selenium.webdriver.common.by import By
         from selenium.webdriver.support.ui import WebDriverWait
 
@@ -205,7 +206,13 @@ def test_web_page_and_cli_fly_a_flight(live):
         click("btn-start")
         assert "Start offboard" in text("confirm-text")
         click("confirm-yes")
-        until(lambda: text("plan-id").startswith("plan-0:"), 20, "flying plan-0 on the page")
+        try:
+            until(lambda: text("plan-id").startswith("plan-0:"), 20, "flying plan-0")
+        except TimeoutException:  # say why: the service's own account
+            st = live.gs.status
+            raise AssertionError(f"plan-0 not flying on the page; service state "
+                                 f"{st.get('state')}, last error {st.get('last_error')}, "
+                                 f"page log {text('log')!r}") from None
         watch = live.rota_gs("watch", "--duration", "2.5")
         assert watch.returncode == 0 and "plan plan-0:" in watch.stdout, watch
         assert "braking zones ahead:" in watch.stdout and "state OFFBOARD" in watch.stdout
