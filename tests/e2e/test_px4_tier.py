@@ -32,14 +32,12 @@ from sitl.px4 import px4_build, skip_reason
 from sitl.tier import TierFlight
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
-#: The tier flies eight scenarios on each backend, real-time PX4 among them: about four
-#: minutes beside the rest of the suite, whose stream-timing tests it pushed past their
-#: budgets on this 2-core machine (two fresh-clone runs, 2026-11-27). Until it fits,
-#: it runs when asked: ROTA_PX4_TIER=1 (with ROTA_PX4_BUILD for its PX4 half).
-TIER_ON = os.environ.get("ROTA_PX4_TIER") == "1"
+#: The tier flies eight scenarios on each backend, real-time PX4 among them (about two
+#: minutes per backend, each on one test worker). It runs in every run; ROTA_PX4_TIER=0
+#: leaves it out (its PX4 half also needs ROTA_PX4_BUILD).
+TIER_ON = os.environ.get("ROTA_PX4_TIER", "1") != "0"
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300),
-              pytest.mark.skipif(not TIER_ON, reason="the PX4 tier runs with ROTA_PX4_TIER=1 "
-                                 "(tests/e2e/test_px4_tier.py says why)")]
+              pytest.mark.skipif(not TIER_ON, reason="ROTA_PX4_TIER=0: the PX4 tier is left out")]
 
 #: Stall shorter than PX4's offboard-loss timeout (1 s) minus the stream's margin
 SHORT_STALL_S = 0.6
