@@ -29,7 +29,7 @@ import pytest
 
 from sitl.proving import statuses_errors
 from sitl.px4 import px4_build, skip_reason
-from sitl.tier import TierFlight
+from sitl.tier import SPEED, TierFlight
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
 #: The tier flies eight scenarios on each backend, real-time PX4 among them (about two
@@ -45,6 +45,7 @@ SHORT_STALL_S = 0.6
 LONG_STALL_S = 1.5
 #: How far a hold may end from where the vehicle was when it was commanded (module doc)
 HOLD_REACH_M = 3.5
+V_MAX = SPEED  #: the tier's speed limit (m/s)
 
 
 @pytest.fixture(scope="module", params=["sitl", "px4"])
@@ -118,18 +119,23 @@ def test_hold_stops_the_vehicle_in_offboard(flight):
         await f.under_way(0.2)
         t0 = time.monotonic()
         here = f.reported_world(t0 - 0.1)[-1]
-        reply = await f.gs.command_confirmed("hold")
+        reply = await f.gs.command("hold")
+        replied = time.monotonic() - t0
         await f.at_rest()
         rest = f.reported_world(time.monotonic() - 0.3)
-        return t0, here, reply, rest.mean(axis=0), f.gs.status
+        return t0, here, reply, replied, rest.mean(axis=0), f.gs.status
 
-    t0, here, reply, rest, status = run(flight, scenario)
+    t0, here, reply, replied, rest, status = run(flight, scenario)
     reach = float(np.linalg.norm(rest - here))
-    print(f"{flight.backend}: hold reached {reach:.2f} m from where it was commanded")
+    print(f"{flight.backend}: hold reached {reach:.2f} m from where it was commanded "
+          f"(the reply came {replied:.3f} s after)")
     assert reply["ok"] and status["command"] == "hold" and status["trajectory_id"] is None
     assert status["state"] == "offboard"
     assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
-    assert reach < HOLD_REACH_M
+    # the brake begins when the service has the command, at most the reply's round trip
+    # after it was sent (0.02-0.05 s quiet, 0.3 s and more on a loaded machine): the
+    # vehicle flew on at up to V_MAX meanwhile
+    assert reach < HOLD_REACH_M + V_MAX * replied
 
 
 def test_a_short_stall_holds_in_offboard(flight):
