@@ -36,6 +36,7 @@ from __future__ import annotations
 import asyncio
 import math
 import multiprocessing
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -280,7 +281,8 @@ def figures(world: World, truth: np.ndarray, estimate: np.ndarray, setpoints: np
 def _worker(args: tuple[str, Px4ExperimentConfig, list[int]]) -> list[dict[str, Any]]:
     build, cfg, indices = args
     trials = [t for t in (prepare(cfg, i) for i in indices) if t.tables]
-    return asyncio.run(_fly(build, cfg, trials, lambda s: print(s, flush=True)))
+    return asyncio.run(_fly(build, cfg, trials,
+                            lambda s: print(s, file=sys.stderr, flush=True)))
 
 
 def run(cfg: Px4ExperimentConfig, build: str,
