@@ -123,16 +123,17 @@ def test_hold_stops_the_vehicle_in_offboard(flight):
         await f.under_way(0.2)
         t0 = time.monotonic()
         here = f.reported_world(t0 - 0.1)[-1]
+        speed = float(np.linalg.norm(f.gs.telemetry.get("velocity") or np.zeros(3)))
         reply = await f.gs.command("hold")
         replied = time.monotonic() - t0
         await f.at_rest()
         rest = f.reported_world(time.monotonic() - 0.3)
-        return t0, here, reply, replied, rest.mean(axis=0), f.gs.status
+        return t0, here, speed, reply, replied, rest.mean(axis=0), f.gs.status
 
-    t0, here, reply, replied, rest, status = run(flight, scenario)
+    t0, here, speed, reply, replied, rest, status = run(flight, scenario)
     reach = float(np.linalg.norm(rest - here))
     print(f"{flight.backend}: hold reached {reach:.2f} m from where it was commanded "
-          f"(the reply came {replied:.3f} s after)")
+          f"at {speed:.2f} m/s (the reply came {replied:.3f} s after)")
     assert reply["ok"] and status["command"] == "hold" and status["trajectory_id"] is None
     assert status["state"] == "offboard"
     assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
