@@ -150,7 +150,7 @@ def noise_seed(seed: int, density_index: int, speed_index: int, trial: int) -> i
 
 
 # ---------------------------------------------------------------------- one task
-def _table_rows(sample: Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray]],
+def table_rows(sample: Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray]],
                 duration: float, rate_hz: float) -> tuple[FloatArray, FloatArray, FloatArray]:
     t = np.arange(int(math.floor(duration * rate_hz + 1e-9)) + 1) / rate_hz
     if t[-1] < duration:
@@ -158,7 +158,13 @@ def _table_rows(sample: Callable[[FloatArray], tuple[FloatArray, FloatArray, Flo
     return sample(t)
 
 
-def _planned_sampler(traj: Trajectory, scale: float = 1.0):
+def path_clearance(world: World, traj: Trajectory) -> float:
+    """The path's smallest clearance (m, robot radius subtracted), sampled every 10 ms."""
+    tau = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
+    return float(np.min(world.signed_distance(traj.position(tau)))) - world.robot_radius
+
+
+def planned_sampler(traj: Trajectory, scale: float = 1.0):
     """The planner's timing, uniformly scaled: ``tau = scale * t`` (scale < 1: slower)."""
     def sample(t: FloatArray):
         p, v, a = traj.evaluate(np.minimum(scale * t, traj.duration))
@@ -166,7 +172,7 @@ def _planned_sampler(traj: Trajectory, scale: float = 1.0):
     return sample
 
 
-def _rota_sampler(result):
+def rota_sampler(result):
     def sample(t: FloatArray):
         s = result.sample(t)
         return s.position, s.velocity, s.acceleration
@@ -229,11 +235,9 @@ def run_task(config: ExperimentConfig, density_index: int, trials: Sequence[int]
                 _nan_record(rec, cfg, "no-plan", str(exc))
                 continue
             rec["planned"].append(True)
-            tau = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
-            rec["path_clearance"].append(
-                float(np.min(w.signed_distance(traj.position(tau)))) - w.robot_radius)
+            rec["path_clearance"].append(path_clearance(w, traj))
             rec["duration"]["planned"].append(traj.duration)
-            rows["planned"].append(_table_rows(_planned_sampler(traj), traj.duration,
+            rows["planned"].append(table_rows(planned_sampler(traj), traj.duration,
                                                cfg.rate_hz))
             for t_mem, key in zip(cfg.memories, keys, strict=True):
                 res = retime(RetimeInput(
@@ -247,13 +251,13 @@ def run_task(config: ExperimentConfig, density_index: int, trials: Sequence[int]
                 rec["approach_fraction"][key].append(
                     float(np.mean(_or_zero(res.diagnostics.approach_mask))))
                 rec["duration"][rota_arm(t_mem)].append(res.duration)
-                rows[rota_arm(t_mem)].append(_table_rows(_rota_sampler(res), res.duration,
+                rows[rota_arm(t_mem)].append(table_rows(rota_sampler(res), res.duration,
                                                          cfg.rate_hz))
                 if cfg.uniform:
                     scale = traj.duration / res.duration
                     rec["duration"][uniform_arm(t_mem)].append(res.duration)
-                    rows[uniform_arm(t_mem)].append(_table_rows(
-                        _planned_sampler(traj, scale), res.duration, cfg.rate_hz))
+                    rows[uniform_arm(t_mem)].append(table_rows(
+                        planned_sampler(traj, scale), res.duration, cfg.rate_hz))
             flown.append(j)
         prep_time += time.perf_counter() - t0
         n_trials = len(trials)

@@ -50,7 +50,7 @@ from rota import Limits, RetimeInput, retime
 from rota.chance import DEFAULT_MEMORY_S, UncertaintyModel
 from rota.robust import Safety
 from rota.voxelmap import VoxelMap
-from sitl.experiment import _planned_sampler, _rota_sampler, _table_rows, world_seed
+from sitl.experiment import path_clearance, planned_sampler, rota_sampler, table_rows, world_seed
 from sitl.planner import PlanningError, plan
 from sitl.world import DENSITIES, World, forest
 
@@ -121,8 +121,8 @@ def world_of(cfg: Px4ExperimentConfig, index: int) -> World:
 
 def prepare(cfg: Px4ExperimentConfig, index: int) -> Trial:
     """Plan and re-time trial ``index``: the setpoints of every arm (nothing flies)."""
-    world = world_of(cfg, index)
     seed = world_seed(cfg.seed, 1, index)
+    world = forest(cfg.density, seed)
     start = np.array([world.start[0], world.start[1], cfg.altitude])
     goal = np.array([world.goal[0], world.goal[1], cfg.altitude])
     try:
@@ -130,9 +130,7 @@ def prepare(cfg: Px4ExperimentConfig, index: int) -> Trial:
                     clearance=cfg.clearance)
     except PlanningError as exc:
         return Trial(index, seed, "no-plan", str(exc), math.nan, math.nan, {}, {})
-    tau = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
-    path_clearance = float(np.min(world.signed_distance(traj.position(tau)))
-                           - world.robot_radius)
+    clearance = path_clearance(world, traj)
     vmap = VoxelMap.from_points(world.voxel_points(0.1), 0.1)
 
     def rota_with(model: UncertaintyModel):  # noqa: ANN202
@@ -142,16 +140,16 @@ def prepare(cfg: Px4ExperimentConfig, index: int) -> Trial:
     res = rota_with(UncertaintyModel(memory_s=cfg.memory_s))
     fitted = rota_with(FITTED)
     if res.status == "rejected":  # the companion refuses to fly it: no arm flies it either
-        return Trial(index, seed, res.status, fitted.status, path_clearance, math.nan,
+        return Trial(index, seed, res.status, fitted.status, clearance, math.nan,
                      {"planned": traj.duration}, {})
     mask = res.diagnostics.braking_mask
     scale = traj.duration / res.duration
     tables = {
-        "planned": _table_rows(_planned_sampler(traj), traj.duration, cfg.rate_hz),
-        "rota": _table_rows(_rota_sampler(res), res.duration, cfg.rate_hz),
-        "uniform": _table_rows(_planned_sampler(traj, scale), res.duration, cfg.rate_hz),
+        "planned": table_rows(planned_sampler(traj), traj.duration, cfg.rate_hz),
+        "rota": table_rows(rota_sampler(res), res.duration, cfg.rate_hz),
+        "uniform": table_rows(planned_sampler(traj, scale), res.duration, cfg.rate_hz),
     }
-    return Trial(index, seed, res.status, fitted.status, path_clearance,
+    return Trial(index, seed, res.status, fitted.status, clearance,
                  float(np.mean(mask)) if mask is not None else 0.0,
                  {"planned": traj.duration, "rota": res.duration, "uniform": res.duration},
                  tables)
@@ -204,9 +202,10 @@ class Stream:
         self.last = np.asarray(p[-1], float)
         return first, self.next_at - self.period
 
-    async def hold(self, seconds: float, where: np.ndarray | None = None) -> None:
+    async def hold(self, seconds: float) -> None:
+        """Hold the last setpoint's position for ``seconds``."""
         n = max(1, int(seconds / self.period))
-        p = np.repeat(np.asarray(self.last if where is None else where, float)[None], n, 0)
+        p = np.repeat(self.last[None], n, 0)
         await self.play(p, np.zeros_like(p), np.zeros_like(p))
 
 
@@ -237,6 +236,7 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
             for trial in trials:
                 home = np.array([*trial.tables["planned"][0][0][:2], 0.0])
                 rec: dict[str, Any] = {"trial": trial.index, "arms": {}}
+                world = world_of(cfg, trial.index)
                 if obs.mode()[0] != "OFFBOARD":  # PX4 left offboard: nothing after counts
                     out.append({"trial": trial.index, "arms": {},
                                 "error": f"PX4 in {obs.mode()[0]}, not OFFBOARD"})
@@ -254,8 +254,7 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                                             5.0, "the truth after the arm")
                     truth = ned_to_enu(obs.truth(t0, t_end)) + home
                     estimate = ned_to_enu(obs.positions(t0, t_end)) + home
-                    rec["arms"][arm] = figures(world_of(cfg, trial.index), truth, estimate,
-                                               p, mode=obs.mode()[0])
+                    rec["arms"][arm] = figures(world, truth, estimate, p, mode=obs.mode()[0])
                     rec["arms"][arm]["late_setpoints"] = stream.late - late
                 out.append(rec)
                 progress(f"trial {trial.index}: " + ", ".join(

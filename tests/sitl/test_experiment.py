@@ -11,7 +11,7 @@ import pytest
 from scipy.optimize import brentq
 
 from rota.trajectory import BSplineTrajectory
-from sitl.experiment import ExperimentConfig, _planned_sampler, run_experiment
+from sitl.experiment import ExperimentConfig, planned_sampler, run_experiment
 from sitl.experiment_cli import main
 from sitl.experiment_report import memory_rule, write_outputs
 from sitl.experiment_stats import cell_stats, mcnemar, wilson
@@ -114,7 +114,7 @@ def test_uniform_slow_down_is_the_planned_path_slower():
     assert isinstance(traj, BSplineTrajectory)
     scale = 0.8
     t = np.linspace(0.0, traj.duration / scale, 400)
-    p, v, a = _planned_sampler(traj, scale)(t)
+    p, v, a = planned_sampler(traj, scale)(t)
     p0, v0, a0 = traj.evaluate(scale * t)
     assert np.allclose(p, p0) and np.allclose(v, scale * v0) and np.allclose(a, scale**2 * a0)
     assert np.allclose(p[-1], traj.position(np.array([traj.duration]))[0])
