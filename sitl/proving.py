@@ -14,9 +14,11 @@ import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -37,20 +39,42 @@ from sitl.world import get_world
 CIRCLE_RADIUS_M = 3.6
 
 
-class ServiceProcess:
-    """``rota-companion run`` in a child process, its output in ``log_path``."""
+#: A deliberate defect a test may build into the service (to show that its assertions
+#: catch one): "frame", setpoints sent to the autopilot without ENU->NED's x/y swap (z
+#: still flipped, so the take-off works).
+DEFECTS = {"frame": "import numpy as _np, companion.flight.autopilot as _a\n"
+                    "_a.enu_to_ned = lambda v: _np.asarray(v, dtype=float) * [1.0, 1.0, -1.0]\n"}
 
-    def __init__(self, cfg: Config, workdir: Path) -> None:
+
+class ServiceProcess:
+    """``rota-companion run`` in a child process, its output in ``log_path``.
+
+    ``notify_socket``: systemd's notification socket to hand the service (:class:`Notes`);
+    ``defect``: one of :data:`DEFECTS`, built in before the service's modules load.
+    """
+
+    def __init__(self, cfg: Config, workdir: Path, notify_socket: Path | None = None,
+                 defect: str | None = None) -> None:
+        if defect is not None and defect not in DEFECTS:
+            raise ValueError(f"defect {defect!r}: one of {sorted(DEFECTS)}")
         self.cfg_path = workdir / "companion.toml"
         self.cfg_path.write_text(to_toml(cfg))
         self.log_path = workdir / "service.log"
+        self.notify_socket, self.defect = notify_socket, defect
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> ServiceProcess:
+        args = ["run", "--config", str(self.cfg_path)]
+        if self.defect is None:
+            command = [sys.executable, "-m", "companion.cli", *args]
+        else:
+            command = [sys.executable, "-c", DEFECTS[self.defect]
+                       + "import sys; from companion.cli import main; sys.exit(main())", *args]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if self.notify_socket is not None:
+            env["NOTIFY_SOCKET"] = str(self.notify_socket)
         log = self.log_path.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(self.cfg_path)],
-            stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        self.proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
         log.close()
         return self
 
@@ -87,6 +111,48 @@ class ServiceProcess:
                 self.proc.kill()
                 self.proc.wait()
         return int(self.proc.returncode)
+
+
+class Notes:
+    """systemd's notification socket, read all the time as systemd does: ``with Notes(path)
+    as notes:``, then :meth:`seen` (READY=1, WATCHDOG=1, STATUS=..., STOPPING=1)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._notes: set[str] = set()
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+
+    def __enter__(self) -> Notes:
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.bind(str(self.path))
+        self._sock.settimeout(0.2)
+        self._thread = threading.Thread(target=self._listen, daemon=True,
+                                        name="systemd-notify")
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        self._thread.join()
+        self._sock.close()
+
+    def _listen(self) -> None:
+        while not self._done.is_set():
+            try:
+                data = self._sock.recv(4096)
+            except (TimeoutError, OSError):
+                continue
+            with self._lock:
+                self._notes.update(data.decode(errors="replace").split("\n"))
+
+    def seen(self) -> set[str]:
+        with self._lock:
+            return set(self._notes)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._notes.clear()
 
 
 def circle_message(center: np.ndarray, radius: float, angle: float, speed: float,
@@ -157,7 +223,7 @@ class Flight:
     @property
     def allowed_speed(self) -> float:
         """The fastest any setpoint may move (the stream's own bound)."""
-        return self.cfg.limits.v_max + blend_speed(self.cfg.safety.stitch_tolerance_m)
+        return allowed_speed(self.cfg)
 
     async def command(self, name: str) -> dict[str, Any]:
         reply = await self.gs.command(name)
@@ -212,11 +278,23 @@ class Flight:
     def figures(self, window: tuple[float, float] | None = None,
                 setpoints: dict[str, np.ndarray] | None = None) -> StreamFigures:
         """The setpoints the vehicle received (so far, or from the final report)."""
-        sp = setpoints if setpoints is not None else self.sim.setpoints()
-        fence = (self.cfg.safety.geofence_min, self.cfg.safety.geofence_max)
-        return check_stream(sp, self.allowed_speed, fence, self.sim.home_enu, window,
-                            self.pauses, self.sim.steal_monitor.samples(),
-                            self.cfg.stream.stall_budget_s)
+        return stream_figures(self.cfg, self.sim, window, setpoints, self.pauses)
+
+
+def allowed_speed(cfg: Config) -> float:
+    """The fastest any setpoint may move (the stream's own bound)."""
+    return cfg.limits.v_max + blend_speed(cfg.safety.stitch_tolerance_m)
+
+
+def stream_figures(cfg: Config, sim: SimProcess, window: tuple[float, float] | None = None,
+                   setpoints: dict[str, np.ndarray] | None = None,
+                   pauses: list[tuple[float, float]] = ()) -> StreamFigures:
+    """Gaps, jumps, limits and the geofence of the setpoints ``sim`` received (so far, or
+    ``setpoints`` from its final report) under the service's ``cfg``."""
+    sp = setpoints if setpoints is not None else sim.setpoints()
+    fence = (cfg.safety.geofence_min, cfg.safety.geofence_max)
+    return check_stream(sp, allowed_speed(cfg), fence, sim.home_enu, window, pauses,
+                        sim.steal_monitor.samples(), cfg.stream.stall_budget_s)
 
 
 def statuses_errors(statuses: Any) -> list[str]:

@@ -25,6 +25,7 @@ from companion.frames import ned_to_enu
 from companion.gs import GroundStation
 from companion.gs.client import GroundStationError
 from sitl.demo import (
+    PLANNER_CLEARANCE_M,
     clearance,
     demo_config,
     free_tcp_port,
@@ -39,7 +40,8 @@ from sitl.mavsdk_util import free_udp_port
 from sitl.observer import Observer
 from sitl.planner import PlanningError
 from sitl.process import SimProcess
-from sitl.proving import ServiceProcess, until
+from sitl.proving import Notes, ServiceProcess, stream_figures, until
+from sitl.stream_checks import StreamFigures
 from sitl.world import get_world
 
 BACKENDS = ("sitl", "px4")
@@ -47,6 +49,8 @@ BACKENDS = ("sitl", "px4")
 TIER_SEED = 3
 SPEED = 2.0
 A_MAX = 1.5
+#: The most clearance the tier's planner keeps after refusals (the forest's gaps allow it)
+MAX_CLEARANCE_M = 1.9
 
 
 class TierFlight:
@@ -55,11 +59,12 @@ class TierFlight:
     :meth:`fly_toward` and :meth:`stall`."""
 
     def __init__(self, backend: str, build: Path | None = None, seed: int = TIER_SEED,
-                 px4_params: dict[str, float] | None = None,
+                 px4_params: dict[str, float] | None = None, defect: str | None = None,
                  **overrides: dict[str, Any]) -> None:
         if backend not in BACKENDS:
             raise ValueError(f"backend {backend!r}: one of {BACKENDS}")
         self.backend, self.build, self.seed = backend, build, seed
+        self.defect = defect  # a deliberate defect built into the service (sitl.proving)
         self.px4_params = px4_params or {}
         # PX4's Return (its offboard-loss failsafe) climbs to 30 m before it flies home: a
         # fence ceiling under that would refuse the 'start' that takes the vehicle back
@@ -67,24 +72,30 @@ class TierFlight:
         self.world = get_world("forest", seed=seed)
         self.home = np.zeros(3)
         self.observer: Observer | None = None
+        self.sim: SimProcess | None = None  # the `sitl` vehicle: its record of every setpoint
+        self.pauses: list[tuple[float, float]] = []  # the service was frozen on purpose
         self.service: ServiceProcess | None = None
         self.gs: GroundStation | None = None
         self.logs: list[str] = []  # outputs of the services that ended
         self.retries: list[str] = []  # trajectories sent again, and why
         self.phases: list[tuple[str, float]] = []  # how long take-offs took
+        #: the planner's clearance (m): more after the service refuses a path as unsafe
+        self.clearance = PLANNER_CLEARANCE_M
         self._stack = contextlib.ExitStack()
         self._tmp = tempfile.TemporaryDirectory(prefix=f"rota-tier-{backend}-")
         self.workdir = Path(self._tmp.name)
+        self.notes = Notes(self.workdir / "notify")  # systemd's notification socket
 
     # ------------------------------------------------------------ life
     def __enter__(self) -> TierFlight:
         try:
+            self._stack.enter_context(self.notes)
             if self.backend == "sitl":
                 port = free_udp_port()
-                sim = self._stack.enter_context(SimProcess(port=port, world="forest",
-                                                           seed=self.seed))
-                self.home = sim.home_enu
-                self.observer = self._stack.enter_context(Observer(sim.gcs_port))
+                self.sim = self._stack.enter_context(SimProcess(port=port, world="forest",
+                                                                seed=self.seed))
+                self.home = self.sim.home_enu
+                self.observer = self._stack.enter_context(Observer(self.sim.gcs_port))
             else:
                 from sitl.px4 import Px4Sitl
 
@@ -108,7 +119,9 @@ class TierFlight:
 
     def start_service(self) -> None:
         """(Re)start the service and a ground station for it."""
-        self.service = ServiceProcess(self.cfg, self.workdir).start()
+        self.notes.clear()
+        self.service = ServiceProcess(self.cfg, self.workdir, self.notes.path,
+                                      self.defect).start()
         try:
             # (the service's start-up imports take 5-40 s on a busy 2-core machine)
             self.gs = GroundStation.for_service(self.cfg, self.cfg.zenoh.listen[0],
@@ -156,6 +169,10 @@ class TierFlight:
             await self._send_map()
         if gs.status["state"] == "offboard" and not gs.status.get("halted") \
                 and gs.status.get("streaming"):
+            if gs.status.get("command") != "hold":  # the last scenario left it flying
+                await gs.command_confirmed("hold")
+                await gs.wait_for(lambda s: s.get("command") == "hold", 20, "the hold")
+                await self.at_rest()
             return np.asarray(gs.telemetry["setpoint"]["position"], dtype=float)
         for attempt in range(3):
             try:
@@ -197,15 +214,15 @@ class TierFlight:
         start = np.asarray(sp.get("position", self.gs.telemetry["position"])) + self.home
         v = np.asarray(sp.get("velocity", [0.0, 0.0, 0.0]))
         moving = self.gs.status.get("command") == "plan"
+        kwargs = {"v_max": SPEED, "a_max": A_MAX, "start": start, "goal": goal,
+                  "clearance": self.clearance}
         try:
             return await asyncio.wait_for(plan_async(
-                self.world, v_max=SPEED, a_max=A_MAX, start=start, goal=goal,
-                start_velocity=v if moving else None, strict=False), 60)
+                self.world, start_velocity=v if moving else None, strict=False, **kwargs), 60)
         except PlanningError:
             if not moving:
                 raise
-        return await asyncio.wait_for(plan_async(self.world, v_max=SPEED, a_max=A_MAX,
-                                                 start=start, goal=goal), 60)
+        return await asyncio.wait_for(plan_async(self.world, **kwargs), 60)
 
     async def fly_toward(self, ident: str, goal: np.ndarray | None = None,
                          timeout_s: float = 30.0) -> np.ndarray:
@@ -230,6 +247,10 @@ class TierFlight:
             # this was planned): start again and plan from where it holds, as a planner would.
             why = s.get("halted") or s.get("last_error")
             self.retries.append(f"{ident} (attempt {attempt}): {why}")
+            if not s.get("halted") and "unsafe" in str(why):
+                # the model the service learned in flight needs more room than the planner
+                # kept: a planner that reads the refusal keeps more
+                self.clearance = min(self.clearance + 0.3, MAX_CLEARANCE_M)
             if s.get("halted"):
                 await start_holding(self.gs)
         raise TimeoutError(f"{ident} not flown: {self.retries[-3:]}")
@@ -253,7 +274,8 @@ class TierFlight:
         self.service.signal(signal.SIGSTOP)
         time.sleep(seconds)
         self.service.signal(signal.SIGCONT)
-        return t0, time.monotonic()
+        self.pauses.append((t0, time.monotonic()))
+        return self.pauses[-1]
 
     async def at_rest(self) -> None:
         await hovering(self.gs)
@@ -276,6 +298,22 @@ class TierFlight:
     def true_clearance(self, t0: float = 0.0, t1: float = float("inf")) -> float:
         """Closest approach to a trunk (robot radius subtracted), ground truth, airborne."""
         return clearance(self.world, self.truth_world(t0, t1))
+
+    def wire(self, t0: float = 0.0, t1: float = float("inf")) -> dict[str, np.ndarray] | None:
+        """The setpoints the `sitl` vehicle received from ``t0`` to ``t1`` (monotonic; world
+        ENU; as :attr:`sitl.process.SimReport.setpoints`); None on PX4, which does not say."""
+        if self.sim is None:
+            return None
+        sp = self.sim.setpoints()
+        keep = (sp["wall_time"] >= t0) & (sp["wall_time"] <= t1)
+        return {k: v[keep] for k, v in sp.items()}
+
+    def stream(self, t0: float, t1: float = float("inf")) -> StreamFigures | None:
+        """Gaps, jumps, limits and the geofence of what the `sitl` vehicle received from
+        ``t0`` to ``t1`` (the freezes of :meth:`stall` left out); None on PX4."""
+        if self.sim is None:
+            return None
+        return stream_figures(self.cfg, self.sim, (t0, t1), pauses=self.pauses)
 
     def reported_world(self, t0: float = 0.0, t1: float = float("inf")) -> np.ndarray:
         ned = self.observer.positions(t0, t1)

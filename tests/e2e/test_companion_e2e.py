@@ -4,15 +4,8 @@ loopback) against the ``sitl`` vehicle in its own process."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import os
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from collections import Counter
 
@@ -20,9 +13,7 @@ import numpy as np
 import pytest
 
 from companion.flight.plan import blend_speed
-from companion.gs import GroundStation
 from companion.recording.record import read
-from companion.settings.config import to_toml
 from sitl.demo import (
     DEMO_ALTITUDE_M,
     closest_approach,
@@ -206,58 +197,6 @@ def test_planner_silence_ends_in_a_hold():
     assert state["mode"] == "OFFBOARD" and np.linalg.norm(state["velocity"]) < 0.3
     print(f"at rest {settle_s:.1f} s after the hold began")
     assert not report.collisions
-
-
-def test_sigterm_mid_flight_hands_over_to_hold(tmp_path):
-    """The service as systemd runs it (a process), killed with SIGTERM in flight."""
-    world = get_world("forest", seed=4)
-    mav, zport = free_udp_port(), free_tcp_port()
-    cfg = demo_config(mav, zport, SPEED, str(tmp_path))
-    cfg_file = tmp_path / "companion.toml"
-    cfg_file.write_text(to_toml(cfg))
-
-    async def scenario(gs, sim):
-        await start_flight(gs, sim, world, "t", 0.3)
-
-    # systemd's notification socket, to see READY / WATCHDOG / STOPPING arrive
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify.bind(str(tmp_path / "notify"))
-    notify.settimeout(0.2)
-    notes: set[str] = set()
-    done = threading.Event()
-
-    def listen() -> None:  # like systemd: read the socket all the time
-        while not done.is_set():
-            with contextlib.suppress(TimeoutError):
-                notes.update(notify.recv(4096).decode().split("\n"))
-
-    listener = threading.Thread(target=listen, daemon=True)
-    listener.start()
-    env = dict(os.environ, NOTIFY_SOCKET=str(tmp_path / "notify"))
-    with SimProcess(port=mav, world="forest", seed=4) as sim:
-        proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config",
-                                 str(cfg_file)], stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True, env=env)
-        gs = GroundStation.for_service(cfg, f"tcp/127.0.0.1:{zport}", wait_s=30)
-        try:
-            asyncio.run(scenario(gs, sim))
-            proc.send_signal(signal.SIGTERM)
-            out, _ = proc.communicate(timeout=20)
-            time.sleep(0.5)
-            state = sim.state()
-        finally:
-            gs.close()
-            if proc.poll() is None:
-                proc.kill()
-    done.set()
-    listener.join()
-    notify.close()
-    assert {"READY=1", "WATCHDOG=1", "STOPPING=1"} <= notes, notes
-    assert any(n.startswith("STATUS=offboard") for n in notes)
-    assert proc.returncode == 0, out
-    assert "PX4 Hold" in out
-    assert state["mode"] == "AUTO_LOITER" and state["armed"]
-    assert not sim.report.collisions
 
 
 def test_closest_approach_helper_measures_clearance():

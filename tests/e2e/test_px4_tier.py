@@ -29,9 +29,10 @@ import time
 import numpy as np
 import pytest
 
-from sitl.proving import statuses_errors
-from sitl.px4 import px4_build, skip_reason
 from companion.flight.stream import BRAKE_SHARE
+from sitl.demo import to_local, trajectory_message
+from sitl.proving import allowed_speed, statuses_errors
+from sitl.px4 import px4_build, skip_reason
 from sitl.tier import A_MAX, SPEED, TierFlight
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
@@ -53,6 +54,17 @@ BRAKE_DECEL = BRAKE_SHARE * A_MAX
 BRAKE_SLACK_M = 0.15
 #: How far the vehicle may rest from its hold setpoint (module doc)
 SETTLE_M = 1.0
+#: The window of a rest point: PX4 (SIH) does not come to rest at a hold; its estimate
+#: wanders around the setpoint by up to 0.65 m at 0.3-0.5 m/s with a period of about 10 s
+#: (docs/sitl.md), so a shorter mean stops at a random phase of it
+REST_WINDOW_S = 10.0
+#: End miss allowed (m), the rest point from the goal, the same on both backends (the `sitl`
+#: vehicle is calibrated to PX4's hover wander, docs/sitl.md). PX4: a 10-s rest point
+#: measured in 8 runs of a 10 m line on this 2-core machine, other PX4 instances and tests
+#: beside it: 0.30-0.60 m (mean 0.36, sd 0.10; mean + 3 sd 0.65 m): 0.8 m. Measured on this
+#: flight (docs/sitl.md, "The PX4 tier"): PX4 0.35-0.39 m, `sitl` 0.30-0.55 m. A frame error
+#: or a dropped trajectory misses by metres (test_a_frame_error_fails_the_tier).
+END_MISS_M = 0.8
 
 
 @pytest.fixture(scope="module", params=["sitl", "px4"])
@@ -73,13 +85,37 @@ def flight(request):
 
 
 def run(f: TierFlight, scenario):
+    """Fly ``scenario``; whatever it checks, no trunk was touched (truth) meanwhile."""
+    t0 = time.monotonic()
     try:
-        return asyncio.run(scenario(f))
+        out = asyncio.run(scenario(f))
     except BaseException:
         print(f"{f.backend}: PX4 modes {f.observer.mode_changes()[-12:]}")
         print(f"{f.backend}: PX4 said {f.observer.texts()[-12:]}")
         print("service log:\n", f.log[-5000:])
         raise
+    clear = f.true_clearance(t0)
+    assert clear > 0.0, f"{f.backend}: a trunk touched (true clearance {clear:.3f} m)"
+    return out
+
+
+def assert_stream_ok(f: TierFlight, t0: float, t1: float = float("inf")) -> None:
+    """Every setpoint the `sitl` vehicle received from ``t0`` to ``t1``: no gap past the
+    stream's budget, no jump, within the limits and the geofence (PX4 does not say what
+    it received: its half rests on what PX4 reports of itself)."""
+    figures = f.stream(t0, t1)
+    if figures is not None:
+        print(f"{f.backend}: vehicle side: {figures.summary()}")
+        assert not figures.problems(), figures.summary()
+
+
+async def rest_point(f: TierFlight) -> np.ndarray:
+    """Where the vehicle holds (world ENU): the mean reported position over REST_WINDOW_S
+    once it hovers (the window of the measurement, not a wait for a state)."""
+    await f.at_rest()
+    t0 = time.monotonic()
+    await asyncio.sleep(REST_WINDOW_S)
+    return f.reported_world(t0).mean(axis=0)
 
 
 def failsafes(f: TierFlight, since: float) -> list[str]:
@@ -109,14 +145,33 @@ def test_forest_flight_with_a_replan(flight):
             f.retries.append(f"forest: {s['halted']}")
             await f.gs.command_confirmed("start")
             await f.fly_toward(f"forest-{attempt + 2}", goal)
-        return t0, time.monotonic()
+        t1 = time.monotonic()
+        return t0, t1, goal, await rest_point(f)
 
-    t0, t1 = run(flight, scenario)
+    t0, t1, goal, rest = run(flight, scenario)
     clear = flight.true_clearance(t0, t1)
-    print(f"{flight.backend}: forest flight {t1 - t0:.1f} s, true clearance {clear:.3f} m")
-    assert flight.modes(t0, t1) == ["OFFBOARD"] and flight.armed()
+    miss = float(np.linalg.norm(rest - goal))
+    print(f"{flight.backend}: forest flight {t1 - t0:.1f} s, true clearance {clear:.3f} m, "
+          f"rest point {miss:.3f} m from the goal")
+    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
     assert not failsafes(flight, t0)
     assert clear > 0.0
+    assert miss < END_MISS_M
+    assert_stream_ok(flight, t0)
+
+
+def test_a_frame_error_fails_the_tier():
+    """The tier catches a real defect: the service built with setpoints sent without
+    ENU -> NED's x/y swap (z still flipped, so the take-off works) does not fly the forest
+    flight to its goal (the `sitl` vehicle; the same assertions as above)."""
+    with TierFlight("sitl", defect="frame") as f:
+        try:
+            test_forest_flight_with_a_replan(f)
+            failed = None
+        except Exception as exc:  # (any of the scenario's checks or waits)
+            failed = f"{type(exc).__name__}: {str(exc)[:300]}"
+    print("with the defect:", failed)
+    assert failed is not None
 
 
 def test_hold_stops_the_vehicle_in_offboard(flight):
@@ -156,25 +211,45 @@ def test_hold_stops_the_vehicle_in_offboard(flight):
     # the command (its age plus the reply's round trip), then braked at BRAKE_DECEL
     assert brake < speed ** 2 / (2 * BRAKE_DECEL) + V_MAX * (age + replied) + BRAKE_SLACK_M
     assert settle < SETTLE_M
+    assert_stream_ok(flight, t0)
 
 
 def test_a_short_stall_holds_in_offboard(flight):
     """Frozen for 0.6 s (under PX4's 1 s offboard-loss timeout minus the stream's margin):
-    the stream brakes to a hold from its last setpoint and PX4 never leaves OFFBOARD."""
+    no leap to where the plan would be by now, a brake from the last setpoint sent to a hold,
+    and PX4 never leaves OFFBOARD; a trajectory that comes meanwhile is re-timed but not
+    flown until a new start."""
     async def scenario(f: TierFlight):
         await f.ready_to_fly()
-        await f.fly_toward("stall-0")
+        t_fly = time.monotonic()
+        goal = await f.fly_toward("stall-0")
         await f.under_way(0.2)
         t0, t1 = f.stall(SHORT_STALL_S)
         halted = await f.gs.wait_for(lambda s: s.get("halted"), 10, "the halt")
-        await f.at_rest()
-        return t0, halted, f.gs.status
+        f.gs.publish("trajectory", trajectory_message(to_local(await f.plan(goal), f.home),
+                                                      "stall-1"))
+        await f.gs.wait_for(lambda s: (s.get("last_retime") or {}).get("id") == "stall-1",
+                            30, "stall-1 re-timed")
+        not_flown = await f.gs.wait_for(lambda s: s.get("command") == "hold", 10, "the hold")
+        reply = await f.gs.command("start")
+        await f.gs.wait_for(lambda s: not s.get("halted"), 10, "the start", fresh=True)
+        await f.fly_toward("stall-2", goal)
+        return t_fly, t0, halted, not_flown, reply, f.gs.status
 
-    t0, halted, status = run(flight, scenario)
+    t_fly, t0, halted, not_flown, reply, status = run(flight, scenario)
     assert f"stalled for {SHORT_STALL_S:.1f}" in halted["halted"], halted["halted"]
-    assert status["state"] == "offboard" and status["streaming"]
+    assert halted["state"] == "offboard"
+    assert not_flown["trajectory_id"] is None and not_flown["command"] == "hold"
+    assert not_flown["state"] == "offboard" and not_flown["streaming"]
+    assert reply["ok"] and status["trajectory_id"] == "stall-2"
     assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
     assert not failsafes(flight, t0), flight.observer.texts(t0)
+    wire = flight.wire(t_fly)
+    if wire is not None:  # the first setpoint after the freeze goes on from the last before
+        before = np.flatnonzero(wire["wall_time"] < t0)[-1]
+        step = float(np.linalg.norm(wire["position"][before + 1] - wire["position"][before]))
+        assert step <= allowed_speed(flight.cfg) * 0.02 + 0.01, step
+    assert_stream_ok(flight, t_fly)
 
 
 def test_the_retime_worker_killed_mid_flight(flight):
@@ -211,6 +286,9 @@ def test_sigterm_in_offboard_hands_px4_to_hold(flight):
 
     t0, code, t_hold = run(flight, scenario)
     print(f"{flight.backend}: PX4 in Hold {t_hold - t0:.2f} s after the SIGTERM")
+    notes = flight.notes.seen()  # what systemd heard from that service
+    assert {"READY=1", "WATCHDOG=1", "STOPPING=1"} <= notes, notes
+    assert any(n.startswith("STATUS=offboard") for n in notes), notes
     assert code == 0
     assert flight.modes(t0) == ["OFFBOARD", "AUTO_LOITER"] and flight.armed()
     assert "PX4 Hold" in flight.logs[-1]
@@ -219,34 +297,41 @@ def test_sigterm_in_offboard_hands_px4_to_hold(flight):
 
 def test_offboard_loss_px4_failsafe_and_no_return_without_start(flight):
     """Frozen for 1.5 s, past PX4's offboard-loss timeout: PX4's failsafe takes the
-    vehicle; the resumed service sends nothing that takes PX4 back into OFFBOARD, says why,
-    and a new start does."""
+    vehicle; the resumed service sends nothing that takes PX4 back into OFFBOARD, says why
+    (a frozen process is no link loss), and a new start flies again."""
     async def scenario(f: TierFlight):
         await f.ready_to_fly()
-        await f.fly_toward("loss-0")
+        t_fly = time.monotonic()
+        goal = await f.fly_toward("loss-0")
         await f.under_way(0.1)
         t0, t1 = f.stall(LONG_STALL_S)
-        s = await f.gs.wait_for(lambda s: not s.get("streaming") and s["state"] == "airborne",
-                                10, "the end of the stream")
+        await f.gs.wait_for(lambda s: not s.get("streaming") and s["state"] == "airborne",
+                            10, "the end of the stream")
+        ended = statuses_errors(f.gs.statuses)
         # PX4 would be back in OFFBOARD within 30 ms of resumed setpoints (docs/sitl.md):
         # watch for 2 s after the service's report
-        t_quiet = time.monotonic()
         await asyncio.sleep(2.0)
         t_start = time.monotonic()
         await f.gs.command_confirmed("start")
         t_back = await f.until_px4(lambda o: o.mode()[0] == "OFFBOARD", 10, "OFFBOARD")
-        return t0, t1, statuses_errors([s]), t_quiet, t_start, t_back
+        await f.fly_toward("loss-1", goal)
+        return t_fly, t0, t1, ended, t_start, t_back, f.gs.status
 
-    t0, t1, ended, t_quiet, t_start, t_back = run(flight, scenario)
+    t_fly, t0, t1, ended, t_start, t_back, status = run(flight, scenario)
     modes = flight.modes(t0, t_start)
     print(f"{flight.backend}: modes after the stall {modes}; failsafe texts "
           f"{failsafes(flight, t0)}")
     assert any(f"stalled for {LONG_STALL_S:.1f}" in e and "offboard-loss" in e
                for e in ended), ended
-    assert modes[0] == "OFFBOARD" and "OFFBOARD" not in modes[1:], modes
+    assert not any("link lost" in e for e in ended), ended
+    # PX4's failsafe took the vehicle, and it was not back in OFFBOARD before the start
+    assert modes[0] == "OFFBOARD" and len(modes) > 1 and "OFFBOARD" not in modes[1:], modes
     assert flight.modes(t_start, t_back)[-1] == "OFFBOARD" and t_back > t_start
-    assert t_quiet - t0 > 0  # (ordering)
-    assert flight.armed()
+    assert status["trajectory_id"] == "loss-1" and flight.armed()
+    wire = flight.wire(t1, t_start)
+    if wire is not None:  # nothing reached the vehicle between the resume and the start
+        assert not len(wire["wall_time"]), wire["wall_time"] - t1
+    assert_stream_ok(flight, t_fly, t0)
 
 
 def test_land_and_disarm(flight):
@@ -278,12 +363,18 @@ def test_a_kill_switch_in_the_air_takes_the_service_out_of_offboard(flight):
         t_seen = time.monotonic()
         await f.until_px4(lambda o: o.seen.landed and o.seen.landed[-1][1] == 1, 20,
                           "the vehicle on the ground")
-        land, arm = await f.gs.command("land"), await f.gs.command("arm")
-        return t0, t_seen, s, land, arm
+        land, disarm = await f.gs.command("land"), await f.gs.command("disarm")
+        arm = await f.gs.command("arm")
+        return t0, t_seen, s, land, disarm, arm
 
-    t0, t_seen, status, land, arm = run(flight, scenario)
+    t0, t_seen, status, land, disarm, arm = run(flight, scenario)
     print(f"{flight.backend}: the service out of offboard {t_seen - t0:.2f} s after the kill")
     assert "PX4 reports the vehicle disarmed" in " ".join(statuses_errors([status]))
     assert not status["streaming"] and not status["armed"]
     assert land["ok"] and "nothing to land" in land["message"], land
+    assert disarm["ok"] and disarm["message"] == "already disarmed", disarm
     assert arm["ok"], arm["message"]
+    # the stream stops with the link monitor's next look (10 Hz) once the disarm is seen
+    wire = flight.wire(t_seen + 0.2)
+    assert wire is None or not len(wire["wall_time"]), wire
+    assert_stream_ok(flight, t0 - 5.0, t_seen)
