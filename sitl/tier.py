@@ -260,7 +260,12 @@ class TierFlight:
         a stall of the busy machine (as it must be) starts again and flies on."""
         for attempt in range(3):
             s = await self.gs.wait_for(lambda s: (s.get("progress") or 0) >= share
-                                       or s.get("halted"), 30, "speed")
+                                       or s.get("halted") or s.get("trajectory_id") is None,
+                                       30, "speed")
+            if s.get("trajectory_id") is None and not s.get("halted"):
+                # the service gave the plan up (a tracking error, a refusal): say why
+                raise AssertionError(f"the plan was given up before {share:.0%} of it: "
+                                     f"{s.get('hold_reason') or s.get('last_error')}")
             if not s.get("halted"):
                 return
             self.retries.append(f"under way: {s['halted']}")

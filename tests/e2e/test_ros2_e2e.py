@@ -84,9 +84,17 @@ def test_ego_planner_over_zenoh_flies_the_forest(layout):
             ckey = peer.advertise(CLOUD, "sensor_msgs/msg/PointCloud2",
                                   "sensor_msgs::msg::dds_::PointCloud2_",
                                   TS.hash_rihs01("sensor_msgs/msg/PointCloud2"))
-            # the map, as the planner's global cloud (local ENU frame, origin at home)
-            peer.publish(ckey, pointcloud_cdr(world.voxel_points(0.1) - home, s))
-            await gs.wait_for(lambda st: st.get("map_voxels"), 20, "the map over ROS")
+            # the map, as the planner's global cloud (local ENU frame, origin at home), sent
+            # again every 2 s until the service has it, as a planner's map publisher repeats
+            cloud = pointcloud_cdr(world.voxel_points(0.1) - home, s)
+            for attempt in range(15):
+                peer.publish(ckey, cloud)
+                try:
+                    await gs.wait_for(lambda st: st.get("map_voxels"), 2, "the map over ROS")
+                    break
+                except TimeoutError:
+                    if attempt == 14:
+                        raise
             await take_off(gs)
             here = await start_holding(gs) + home  # the planner plans from the hold
             goal = np.array([world.goal[0], world.goal[1], here[2]])
