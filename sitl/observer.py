@@ -100,8 +100,11 @@ class Observer:
         for sock in socks:
             parser = mavlink2.MAVLink(None)
             parser.robust_parsing = True
-            thread = threading.Thread(target=self._listen, args=(sock, parser), daemon=True,
-                                      name="mavlink-observer")
+            # (only the truth from the second link: its HEARTBEATs, read in another thread,
+            # can be taken in after a newer mode from the first and seem a mode change)
+            only = ("HIL_STATE_QUATERNION",) if sock is not self._sock else None
+            thread = threading.Thread(target=self._listen, args=(sock, parser, only),
+                                      daemon=True, name="mavlink-observer")
             thread.start()
             self._threads.append(thread)
         end = time.monotonic() + 30.0
@@ -143,7 +146,9 @@ class Observer:
         self._command(_M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, FORCE_DISARM_MAGIC)
 
     # ------------------------------------------------------------ receiving
-    def _listen(self, sock: socket.socket, parser: object) -> None:
+    def _listen(self, sock: socket.socket, parser: object,
+                only: tuple[str, ...] | None = None) -> None:
+        """Take in what arrives on ``sock`` (with ``only``: just those messages)."""
         while not self._stop.is_set():
             try:
                 data = sock.recv(65535)
@@ -151,7 +156,8 @@ class Observer:
                 continue
             now = time.monotonic()
             for msg in parser.parse_buffer(data) or []:  # type: ignore[attr-defined]
-                if msg.get_srcSystem() == self.system_id:
+                if msg.get_srcSystem() == self.system_id and (
+                        only is None or msg.get_type() in only):  # type: ignore[attr-defined]
                     self._on(msg, now)
 
     def _on(self, msg: object, now: float) -> None:

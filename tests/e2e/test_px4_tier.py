@@ -319,8 +319,9 @@ def test_offboard_loss_px4_failsafe_and_no_return_without_start(flight):
 
     t_fly, t0, t1, ended, t_start, t_back, status = run(flight, scenario)
     modes = flight.modes(t0, t_start)
-    print(f"{flight.backend}: modes after the stall {modes}; failsafe texts "
-          f"{failsafes(flight, t0)}")
+    changes = [(round(t - t1, 3), m) for t, m, _ in flight.observer.mode_changes(t0 - 1.0)]
+    print(f"{flight.backend}: modes after the stall {modes} (s after the resume: {changes}); "
+          f"failsafe texts {failsafes(flight, t0)}")
     assert any(f"stalled for {LONG_STALL_S:.1f}" in e and "offboard-loss" in e
                for e in ended), ended
     assert not any("link lost" in e for e in ended), ended
