@@ -20,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -288,7 +289,7 @@ def allowed_speed(cfg: Config) -> float:
 
 def stream_figures(cfg: Config, sim: SimProcess, window: tuple[float, float] | None = None,
                    setpoints: dict[str, np.ndarray] | None = None,
-                   pauses: list[tuple[float, float]] = ()) -> StreamFigures:
+                   pauses: Sequence[tuple[float, float]] = ()) -> StreamFigures:
     """Gaps, jumps, limits and the geofence of the setpoints ``sim`` received (so far, or
     ``setpoints`` from its final report) under the service's ``cfg``."""
     sp = setpoints if setpoints is not None else sim.setpoints()

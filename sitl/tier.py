@@ -170,8 +170,7 @@ class TierFlight:
         if gs.status["state"] == "offboard" and not gs.status.get("halted") \
                 and gs.status.get("streaming"):
             if gs.status.get("command") != "hold":  # the last scenario left it flying
-                await gs.command_confirmed("hold")
-                await gs.wait_for(lambda s: s.get("command") == "hold", 20, "the hold")
+                await gs.command_confirmed("hold")  # (confirmed: the brake is over)
                 await self.at_rest()
             return np.asarray(gs.telemetry["setpoint"]["position"], dtype=float)
         for attempt in range(3):
@@ -224,15 +223,21 @@ class TierFlight:
                 raise
         return await asyncio.wait_for(plan_async(self.world, **kwargs), 60)
 
+    async def send_plan(self, ident: str, goal: np.ndarray) -> float:
+        """Plan to ``goal`` (:meth:`plan`) and publish it as trajectory ``ident``; when
+        (wall clock, as the service's error stamps)."""
+        traj = await self.plan(goal)
+        sent = time.time()
+        self.gs.publish("trajectory", trajectory_message(to_local(traj, self.home), ident))
+        return sent
+
     async def fly_toward(self, ident: str, goal: np.ndarray | None = None,
                          timeout_s: float = 30.0) -> np.ndarray:
         """Plan to ``goal`` (default :meth:`target`) from where the service commands, fly
         it; returns the goal (world ENU)."""
         goal = self.target() if goal is None else goal
         for attempt in range(3):
-            traj = await self.plan(goal)
-            sent = time.time()
-            self.gs.publish("trajectory", trajectory_message(to_local(traj, self.home), ident))
+            sent = await self.send_plan(ident, goal)
 
             def refused(s: dict[str, Any], sent: float = sent) -> bool:
                 err = s.get("last_error") or {}

@@ -30,7 +30,6 @@ import numpy as np
 import pytest
 
 from companion.flight.stream import BRAKE_SHARE
-from sitl.demo import to_local, trajectory_message
 from sitl.proving import allowed_speed, statuses_errors
 from sitl.px4 import px4_build, skip_reason
 from sitl.tier import A_MAX, SPEED, TierFlight
@@ -226,8 +225,7 @@ def test_a_short_stall_holds_in_offboard(flight):
         await f.under_way(0.2)
         t0, t1 = f.stall(SHORT_STALL_S)
         halted = await f.gs.wait_for(lambda s: s.get("halted"), 10, "the halt")
-        f.gs.publish("trajectory", trajectory_message(to_local(await f.plan(goal), f.home),
-                                                      "stall-1"))
+        await f.send_plan("stall-1", goal)
         await f.gs.wait_for(lambda s: (s.get("last_retime") or {}).get("id") == "stall-1",
                             30, "stall-1 re-timed")
         not_flown = await f.gs.wait_for(lambda s: s.get("command") == "hold", 10, "the hold")
