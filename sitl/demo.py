@@ -278,9 +278,12 @@ async def fly_to_goal(gs: GroundStation, world: World, home: np.ndarray, speed: 
 
 
 async def _run(cfg: Config, world: World, home: np.ndarray, speed: float, replans: int,
-               land: bool) -> dict[str, Any]:
+               land: bool, hold_s: float = 0.0) -> dict[str, Any]:
     async with running(cfg) as (service, gs):
         result = await fly_to_goal(gs, world, home, speed, min(cfg.limits.a_max), replans)
+        if hold_s > 0:
+            say(f"holding at the goal for {hold_s:g} s")
+            await asyncio.sleep(hold_s)  # the window recorded, not a wait for a state
         if land:
             say("landing")
             await gs.command_confirmed("land")
@@ -305,19 +308,22 @@ def closest_approach(world: World, report: SimReport) -> float:
 
 
 def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
-             replans: int = 1, px4_build: str | None = None) -> dict[str, Any]:
+             replans: int = 1, px4_build: str | None = None, hold_s: float = 0.0,
+             ) -> dict[str, Any]:
     """Run the demo flight; print and return a summary; write the flight record,
     its plot and a JSON summary. With ``px4_build`` the vehicle is real PX4 SITL
-    (the SIH quadrotor of that build) instead of the ``sitl`` vehicle."""
+    (the SIH quadrotor of that build) instead of the ``sitl`` vehicle. ``hold_s``:
+    how long it holds at the goal before it lands (the record then shows how it
+    settles there: ``rota-sitl parity``)."""
     _PROGRESS["t0"] = time.monotonic()
     try:
-        return _demo(out_dir, seed, speed, replans, px4_build)
+        return _demo(out_dir, seed, speed, replans, px4_build, hold_s)
     finally:
         _PROGRESS["t0"] = None
 
 
 def _demo(out_dir: str, seed: int, speed: float, replans: int,
-          px4_build: str | None) -> dict[str, Any]:
+          px4_build: str | None, hold_s: float) -> dict[str, Any]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     world = get_world("forest", seed=seed)
@@ -332,7 +338,8 @@ def _demo(out_dir: str, seed: int, speed: float, replans: int,
         print(f"demo: forest world seed {seed} ({len(world.obstacles)} trees), speed limit "
               f"{speed} m/s; vehicle ({'PX4 SITL' if px4_build else 'sitl'}) on udp "
               f"127.0.0.1:{mav_port}, Zenoh tcp/127.0.0.1:{zenoh_port}", flush=True)
-        result = asyncio.run(_run(cfg, world, home, speed, replans, land=True))
+        result = asyncio.run(_run(cfg, world, home, speed, replans, land=True,
+                                  hold_s=hold_s))
     say("landed: writing the summary and the plot")
     flight = replay.load(result["record"])
     if isinstance(sim, SimProcess):

@@ -20,7 +20,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from companion.cli import RunError, _positive, one_line, setup_logging
+from companion.cli import RunError, UsageError, _positive, one_line, setup_logging
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -104,7 +104,9 @@ def cmd_parity(args: argparse.Namespace) -> int:
 
     _positive(args, "runs")
     setup_logging("WARNING")
-    print(run_parity(args.runs, args.px4, args.out))
+    if args.tier_runs < 0:
+        raise UsageError(f"--tier-runs: must be 0 or more, got {args.tier_runs}")
+    print(run_parity(args.runs, args.px4, args.out, args.tier_runs))
     return 0
 
 
@@ -134,9 +136,11 @@ def add_flight_commands(sub: argparse._SubParsersAction) -> None:
                    help="generated messages (default 2000), plus four oversized ones")
     p.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
     p.set_defaults(func=cmd_fuzz)
-    p = sub.add_parser("parity", help="the demo flight N times on the sitl vehicle and on PX4 "
-                       "SITL, side by side (docs/sitl.md)")
-    p.add_argument("--runs", type=int, default=10, help="flights per backend (default 10)")
+    p = sub.add_parser("parity", help="the demo flight (and the PX4 tier's flights) N times on "
+                       "the sitl vehicle and on PX4 SITL, side by side (docs/sitl.md)")
+    p.add_argument("--runs", type=int, default=10, help="demo flights per backend (default 10)")
+    p.add_argument("--tier-runs", type=int, default=0, help="also fly the PX4 tier's "
+                   "scenarios this many times per backend (default 0; about 3 min each)")
     p.add_argument("--px4", metavar="BUILD_DIR", help="also fly real PX4 SITL of this build")
     p.add_argument("--out", default=None, help="write the Markdown table here (and JSON beside)")
     p.set_defaults(func=cmd_parity)

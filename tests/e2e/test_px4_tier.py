@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import signal
 import time
 
 import numpy as np
@@ -33,6 +32,19 @@ from companion.flight.stream import BRAKE_SHARE
 from sitl.proving import allowed_speed, statuses_errors
 from sitl.px4 import px4_build, skip_reason
 from sitl.tier import A_MAX, SPEED, TierFlight
+from sitl.tier_scenarios import (
+    LONG_STALL_S,
+    SHORT_STALL_S,
+    failsafes,
+    forest_flight,
+    hold,
+    kill_switch,
+    land,
+    offboard_loss,
+    short_stall,
+    sigterm,
+    worker_killed,
+)
 
 # (the first test of a backend also boots it and takes off: up to a minute on a busy machine)
 #: The tier flies eight scenarios on each backend, real-time PX4 among them (about two
@@ -42,10 +54,6 @@ TIER_ON = os.environ.get("ROTA_PX4_TIER", "1") != "0"
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300),
               pytest.mark.skipif(not TIER_ON, reason="ROTA_PX4_TIER=0 leaves the PX4 tier out")]
 
-#: Stall shorter than PX4's offboard-loss timeout (1 s) minus the stream's margin
-SHORT_STALL_S = 0.6
-#: Stall past PX4's offboard-loss timeout
-LONG_STALL_S = 1.5
 V_MAX = SPEED  #: the tier's speed limit (m/s)
 #: The service's braking deceleration: 0.7 x a_max (companion/flight/stream.py)
 BRAKE_DECEL = BRAKE_SHARE * A_MAX
@@ -53,10 +61,6 @@ BRAKE_DECEL = BRAKE_SHARE * A_MAX
 BRAKE_SLACK_M = 0.15
 #: How far the vehicle may rest from its hold setpoint (module doc)
 SETTLE_M = 1.0
-#: The window of a rest point: PX4 (SIH) does not come to rest at a hold; its estimate
-#: wanders around the setpoint by up to 0.65 m at 0.3-0.5 m/s with a period of about 10 s
-#: (docs/sitl.md), so a shorter mean stops at a random phase of it
-REST_WINDOW_S = 10.0
 #: End miss allowed (m), the rest point from the goal, the same on both backends (the `sitl`
 #: vehicle is calibrated to PX4's hover wander, docs/sitl.md). PX4: a 10-s rest point
 #: measured in 8 runs of a 10 m line on this 2-core machine, other PX4 instances and tests
@@ -108,55 +112,17 @@ def assert_stream_ok(f: TierFlight, t0: float, t1: float = float("inf")) -> None
         assert not figures.problems(), figures.summary()
 
 
-async def rest_point(f: TierFlight) -> np.ndarray:
-    """Where the vehicle holds (world ENU): the mean reported position over REST_WINDOW_S
-    once it hovers (the window of the measurement, not a wait for a state)."""
-    await f.at_rest()
-    t0 = time.monotonic()
-    await asyncio.sleep(REST_WINDOW_S)
-    return f.reported_world(t0).mean(axis=0)
-
-
-def failsafes(f: TierFlight, since: float) -> list[str]:
-    return [t for t in f.observer.texts(since) if "ailsafe" in t]
-
-
 def test_forest_flight_with_a_replan(flight):
     """The demo's flight: start to goal through the forest, replanned half-way; PX4 stays
     in OFFBOARD and armed throughout, reaches the goal, touches no trunk (truth)."""
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        t0 = time.monotonic()
-        goal = await f.fly_toward("forest-0")
-        await f.under_way(0.4)
-        await f.fly_toward("forest-1", goal)
-        local = goal - f.home
-        for attempt in range(3):
-            s = await f.gs.wait_for(
-                lambda s: s.get("halted") or s.get("command") == "hold"
-                and s.get("trajectory_id") is None
-                and np.linalg.norm(np.asarray(f.gs.telemetry["position"]) - local) < 0.5, 60,
-                "the goal")
-            if not s.get("halted"):
-                break
-            # a stall of the busy machine halted the flight, as it must (in OFFBOARD): a
-            # planner starts again from the hold
-            f.retries.append(f"forest: {s['halted']}")
-            await f.gs.command_confirmed("start")
-            await f.fly_toward(f"forest-{attempt + 2}", goal)
-        t1 = time.monotonic()
-        return t0, t1, goal, await rest_point(f)
-
-    t0, t1, goal, rest = run(flight, scenario)
-    clear = flight.true_clearance(t0, t1)
-    miss = float(np.linalg.norm(rest - goal))
-    print(f"{flight.backend}: forest flight {t1 - t0:.1f} s, true clearance {clear:.3f} m, "
-          f"rest point {miss:.3f} m from the goal")
-    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
-    assert not failsafes(flight, t0)
-    assert clear > 0.0
-    assert miss < END_MISS_M
-    assert_stream_ok(flight, t0)
+    r = run(flight, forest_flight)
+    print(f"{flight.backend}: forest flight {r.t1 - r.t0:.1f} s, true clearance "
+          f"{r.clearance_m:.3f} m, rest point {r.miss_m:.3f} m from the goal")
+    assert flight.modes(r.t0) == ["OFFBOARD"] and flight.armed()
+    assert not failsafes(flight, r.t0)
+    assert r.clearance_m > 0.0
+    assert r.miss_m < END_MISS_M
+    assert_stream_ok(flight, r.t0)
 
 
 def test_a_frame_error_fails_the_tier():
@@ -179,38 +145,20 @@ def test_hold_stops_the_vehicle_in_offboard(flight):
     stays in OFFBOARD. (How far the vehicle itself travels also holds its lag behind the
     setpoint at the command, a property of the vehicle that the scenario's place on the
     path sets: 0.5-1.6 m on the `sitl` vehicle at 2 m/s; printed, not a promise of ``hold``.)"""
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        await f.fly_toward("hold-0")
-        await f.under_way(0.2)
-        t0 = time.monotonic()
-        here = f.reported_world(t0 - 0.1)[-1]
-        tel = f.gs.telemetry
-        age = max(time.time() - float(tel["stamp"]), 0.0)
-        speed = float(np.linalg.norm(tel["setpoint"]["velocity"]))
-        commanded = f.position_world()
-        reply = await f.gs.command("hold")
-        replied = time.monotonic() - t0
-        await f.at_rest()
-        rest = f.reported_world(time.monotonic() - 0.3).mean(axis=0)
-        return t0, here, speed, age, commanded, reply, replied, rest, f.position_world(), \
-            f.gs.status
-
-    t0, here, speed, age, commanded, reply, replied, rest, held, status = run(flight, scenario)
-    brake = float(np.linalg.norm(held - commanded))
-    settle = float(np.linalg.norm(rest - held))
-    print(f"{flight.backend}: hold at {speed:.2f} m/s: setpoint braked {brake:.2f} m, the "
-          f"vehicle at rest {settle:.2f} m from it and {np.linalg.norm(rest - here):.2f} m "
-          f"from where it was (lag {np.linalg.norm(commanded - here):.2f} m); telemetry "
-          f"{age:.3f} s old, the reply {replied:.3f} s after")
-    assert reply["ok"] and status["command"] == "hold" and status["trajectory_id"] is None
-    assert status["state"] == "offboard"
-    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
+    r = run(flight, hold)
+    print(f"{flight.backend}: hold at {r.speed:.2f} m/s: setpoint braked {r.brake_m:.2f} m, "
+          f"the vehicle at rest {r.settle_m:.2f} m from it and {r.travel_m:.2f} m from where "
+          f"it was (lag {r.lag_m:.2f} m); telemetry {r.age_s:.3f} s old, the reply "
+          f"{r.replied_s:.3f} s after")
+    assert r.reply["ok"] and r.status["command"] == "hold" and r.status["trajectory_id"] is None
+    assert r.status["state"] == "offboard"
+    assert flight.modes(r.t0) == ["OFFBOARD"] and flight.armed()
     # the setpoint flew on at up to V_MAX from the telemetry sample to the service's having
     # the command (its age plus the reply's round trip), then braked at BRAKE_DECEL
-    assert brake < speed ** 2 / (2 * BRAKE_DECEL) + V_MAX * (age + replied) + BRAKE_SLACK_M
-    assert settle < SETTLE_M
-    assert_stream_ok(flight, t0)
+    assert r.brake_m < (r.speed ** 2 / (2 * BRAKE_DECEL) + V_MAX * (r.age_s + r.replied_s)
+                        + BRAKE_SLACK_M)
+    assert r.settle_m < SETTLE_M
+    assert_stream_ok(flight, r.t0)
 
 
 def test_a_short_stall_holds_in_offboard(flight):
@@ -218,163 +166,82 @@ def test_a_short_stall_holds_in_offboard(flight):
     no leap to where the plan would be by now, a brake from the last setpoint sent to a hold,
     and PX4 never leaves OFFBOARD; a trajectory that comes meanwhile is re-timed but not
     flown until a new start."""
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        t_fly = time.monotonic()
-        goal = await f.fly_toward("stall-0")
-        await f.under_way(0.2)
-        t0, t1 = f.stall(SHORT_STALL_S)
-        halted = await f.gs.wait_for(lambda s: s.get("halted"), 10, "the halt")
-        await f.send_plan("stall-1", goal)
-        await f.gs.wait_for(lambda s: (s.get("last_retime") or {}).get("id") == "stall-1",
-                            30, "stall-1 re-timed")
-        not_flown = await f.gs.wait_for(lambda s: s.get("command") == "hold", 10, "the hold")
-        reply = await f.gs.command("start")
-        await f.gs.wait_for(lambda s: not s.get("halted"), 10, "the start", fresh=True)
-        await f.fly_toward("stall-2", goal)
-        return t_fly, t0, halted, not_flown, reply, f.gs.status
-
-    t_fly, t0, halted, not_flown, reply, status = run(flight, scenario)
-    assert f"stalled for {SHORT_STALL_S:.1f}" in halted["halted"], halted["halted"]
-    assert halted["state"] == "offboard"
-    assert not_flown["trajectory_id"] is None and not_flown["command"] == "hold"
-    assert not_flown["state"] == "offboard" and not_flown["streaming"]
-    assert reply["ok"] and status["trajectory_id"] == "stall-2"
-    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
-    assert not failsafes(flight, t0), flight.observer.texts(t0)
-    wire = flight.wire(t_fly)
+    r = run(flight, short_stall)
+    assert f"stalled for {SHORT_STALL_S:.1f}" in r.halted["halted"], r.halted["halted"]
+    assert r.halted["state"] == "offboard"
+    assert r.not_flown["trajectory_id"] is None and r.not_flown["command"] == "hold"
+    assert r.not_flown["state"] == "offboard" and r.not_flown["streaming"]
+    assert r.reply["ok"] and r.status["trajectory_id"] == "stall-2"
+    assert flight.modes(r.t0) == ["OFFBOARD"] and flight.armed()
+    assert not failsafes(flight, r.t0), flight.observer.texts(r.t0)
+    wire = flight.wire(r.t_fly)
     if wire is not None:  # the first setpoint after the freeze goes on from the last before
-        before = np.flatnonzero(wire["wall_time"] < t0)[-1]
+        before = np.flatnonzero(wire["wall_time"] < r.t0)[-1]
         step = float(np.linalg.norm(wire["position"][before + 1] - wire["position"][before]))
         assert step <= allowed_speed(flight.cfg) * 0.02 + 0.01, step
-    assert_stream_ok(flight, t_fly)
+    assert_stream_ok(flight, r.t_fly)
 
 
 def test_the_retime_worker_killed_mid_flight(flight):
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        await f.fly_toward("worker-0")
-        await f.under_way(0.1)
-        t0 = time.monotonic()
-        pid = f.gs.status["supervision"]["worker_pids"]["re-time"][0]
-        os.kill(pid, signal.SIGKILL)
-        await f.gs.wait_for(lambda s: any("re-time worker killed by SIGKILL" in e["message"]
-                                          for e in s.get("events", ())), 5, "the report")
-        await f.gs.wait_for(lambda s: s["supervision"]["worker_pids"]["re-time"]
-                            and s["supervision"]["worker_pids"]["re-time"][0] != pid, 20,
-                            "a new worker")
-        # (the new worker's first re-time loads its compiled kernels: 5-40 s when busy)
-        await f.fly_toward("worker-1", timeout_s=90)
-        return t0, f.gs.status
-
-    t0, status = run(flight, scenario)
-    assert status["trajectory_id"] == "worker-1" and status["state"] == "offboard"
-    assert flight.modes(t0) == ["OFFBOARD"] and flight.armed()
+    r = run(flight, worker_killed)
+    assert r.status["trajectory_id"] == "worker-1" and r.status["state"] == "offboard"
+    assert flight.modes(r.t0) == ["OFFBOARD"] and flight.armed()
 
 
 def test_sigterm_in_offboard_hands_px4_to_hold(flight):
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        await f.fly_toward("term-0")
-        await f.under_way(0.1)
-        t0 = time.monotonic()
-        code = f.stop_service()
-        t_hold = await f.until_px4(lambda o: o.mode()[0] == "AUTO_LOITER", 10, "Hold")
-        return t0, code, t_hold
-
-    t0, code, t_hold = run(flight, scenario)
-    print(f"{flight.backend}: PX4 in Hold {t_hold - t0:.2f} s after the SIGTERM")
+    r = run(flight, sigterm)
+    print(f"{flight.backend}: PX4 in Hold {r.t_hold - r.t0:.2f} s after the SIGTERM")
     notes = flight.notes.seen()  # what systemd heard from that service
     assert {"READY=1", "WATCHDOG=1", "STOPPING=1"} <= notes, notes
     assert any(n.startswith("STATUS=offboard") for n in notes), notes
-    assert code == 0
-    assert flight.modes(t0) == ["OFFBOARD", "AUTO_LOITER"] and flight.armed()
+    assert r.code == 0
+    assert flight.modes(r.t0) == ["OFFBOARD", "AUTO_LOITER"] and flight.armed()
     assert "PX4 Hold" in flight.logs[-1]
-    assert not failsafes(flight, t0)
+    assert not failsafes(flight, r.t0)
 
 
 def test_offboard_loss_px4_failsafe_and_no_return_without_start(flight):
     """Frozen for 1.5 s, past PX4's offboard-loss timeout: PX4's failsafe takes the
     vehicle; the resumed service sends nothing that takes PX4 back into OFFBOARD, says why
     (a frozen process is no link loss), and a new start flies again."""
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        t_fly = time.monotonic()
-        goal = await f.fly_toward("loss-0")
-        await f.under_way(0.1)
-        t0, t1 = f.stall(LONG_STALL_S)
-        await f.gs.wait_for(lambda s: not s.get("streaming") and s["state"] == "airborne",
-                            10, "the end of the stream")
-        ended = statuses_errors(f.gs.statuses)
-        # PX4 would be back in OFFBOARD within 30 ms of resumed setpoints (docs/sitl.md):
-        # watch for 2 s after the service's report
-        await asyncio.sleep(2.0)
-        t_start = time.monotonic()
-        await f.gs.command_confirmed("start")
-        t_back = await f.until_px4(lambda o: o.mode()[0] == "OFFBOARD", 10, "OFFBOARD")
-        await f.fly_toward("loss-1", goal)
-        return t_fly, t0, t1, ended, t_start, t_back, f.gs.status
-
-    t_fly, t0, t1, ended, t_start, t_back, status = run(flight, scenario)
-    modes = flight.modes(t0, t_start)
-    changes = [(round(t - t1, 3), m) for t, m, _ in flight.observer.mode_changes(t0 - 1.0)]
+    r = run(flight, offboard_loss)
+    modes = flight.modes(r.t0, r.t_start)
+    changes = [(round(t - r.t1, 3), m) for t, m, _ in flight.observer.mode_changes(r.t0 - 1.0)]
     print(f"{flight.backend}: modes after the stall {modes} (s after the resume: {changes}); "
-          f"failsafe texts {failsafes(flight, t0)}")
+          f"failsafe {r.failsafe_after_s:.2f} s after the freeze; failsafe texts "
+          f"{failsafes(flight, r.t0)}")
     assert any(f"stalled for {LONG_STALL_S:.1f}" in e and "offboard-loss" in e
-               for e in ended), ended
-    assert not any("link lost" in e for e in ended), ended
+               for e in r.ended), r.ended
+    assert not any("link lost" in e for e in r.ended), r.ended
     # PX4's failsafe took the vehicle, and it was not back in OFFBOARD before the start
     assert modes[0] == "OFFBOARD" and len(modes) > 1 and "OFFBOARD" not in modes[1:], modes
-    assert flight.modes(t_start, t_back)[-1] == "OFFBOARD" and t_back > t_start
-    assert status["trajectory_id"] == "loss-1" and flight.armed()
-    wire = flight.wire(t1, t_start)
+    assert flight.modes(r.t_start, r.t_back)[-1] == "OFFBOARD" and r.t_back > r.t_start
+    assert r.status["trajectory_id"] == "loss-1" and flight.armed()
+    wire = flight.wire(r.t1, r.t_start)
     if wire is not None:  # nothing reached the vehicle between the resume and the start
-        assert not len(wire["wall_time"]), wire["wall_time"] - t1
-    assert_stream_ok(flight, t_fly, t0)
+        assert not len(wire["wall_time"]), wire["wall_time"] - r.t1
+    assert_stream_ok(flight, r.t_fly, r.t0)
 
 
 def test_land_and_disarm(flight):
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        t0 = time.monotonic()
-        await f.gs.command_confirmed("land")
-        t_down = await f.until_px4(lambda o: not o.mode()[1], 30, "disarmed")
-        return t0, t_down, f.gs.status
-
-    t0, t_down, status = run(flight, scenario)
-    print(f"{flight.backend}: landed and disarmed {t_down - t0:.1f} s after 'land'")
-    modes = flight.modes(t0)
+    r = run(flight, land)
+    print(f"{flight.backend}: landed and disarmed {r.t_down - r.t0:.1f} s after 'land'")
+    modes = flight.modes(r.t0)
     assert "AUTO_LAND" in modes and not flight.armed(), modes
     # (as the land command's confirmation: "not_ready" while PX4's checks settle after it)
-    assert status["state"] in ("ready", "not_ready") and not status["armed"]
-    assert flight.truth_world(t_down - 0.5)[:, 2].max() < 0.3
+    assert r.status["state"] in ("ready", "not_ready") and not r.status["armed"]
+    assert flight.truth_world(r.t_down - 0.5)[:, 2].max() < 0.3
 
 
 def test_a_kill_switch_in_the_air_takes_the_service_out_of_offboard(flight):
-    async def scenario(f: TierFlight):
-        await f.ready_to_fly()
-        t_fly = time.monotonic()
-        await f.fly_toward("kill-0")
-        await f.under_way(0.1)
-        t0 = time.monotonic()
-        f.observer.kill()
-        s = await f.gs.wait_for(lambda s: s["state"] in ("ready", "not_ready"), 10,
-                                "the service")
-        t_seen = time.monotonic()
-        await f.until_px4(lambda o: o.seen.landed and o.seen.landed[-1][1] == 1, 20,
-                          "the vehicle on the ground")
-        land, disarm = await f.gs.command("land"), await f.gs.command("disarm")
-        arm = await f.gs.command("arm")
-        return t_fly, t0, t_seen, s, land, disarm, arm
-
-    t_fly, t0, t_seen, status, land, disarm, arm = run(flight, scenario)
-    print(f"{flight.backend}: the service out of offboard {t_seen - t0:.2f} s after the kill")
-    assert "PX4 reports the vehicle disarmed" in " ".join(statuses_errors([status]))
-    assert not status["streaming"] and not status["armed"]
-    assert land["ok"] and "nothing to land" in land["message"], land
-    assert disarm["ok"] and disarm["message"] == "already disarmed", disarm
-    assert arm["ok"], arm["message"]
+    r = run(flight, kill_switch)
+    print(f"{flight.backend}: the service out of offboard {r.t_seen - r.t0:.2f} s after the kill")
+    assert "PX4 reports the vehicle disarmed" in " ".join(statuses_errors([r.status]))
+    assert not r.status["streaming"] and not r.status["armed"]
+    assert r.land["ok"] and "nothing to land" in r.land["message"], r.land
+    assert r.disarm["ok"] and r.disarm["message"] == "already disarmed", r.disarm
+    assert r.arm["ok"], r.arm["message"]
     # the stream stops with the link monitor's next look (10 Hz) once the disarm is seen
-    wire = flight.wire(t_seen + 0.2)
+    wire = flight.wire(r.t_seen + 0.2)
     assert wire is None or not len(wire["wall_time"]), wire
-    assert_stream_ok(flight, t_fly, t_seen)
+    assert_stream_ok(flight, r.t_fly, r.t_seen)

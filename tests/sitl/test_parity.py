@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+import pytest
+
 from sitl.parity import spread, table
 
 
@@ -27,3 +30,50 @@ def test_the_table_counts_failed_runs_and_collisions():
     assert "`sitl` (2 of 2 runs)" in text and "`px4` (2 of 3 runs)" in text
     assert "| flight time to the goal (s) | 12.5 ± 0.707 (12-13) | 18.5 ± 0.707 (18-19) |" in text
     assert text.splitlines()[-1] == "| reached the goal without a collision | 2 of 2 | 1 of 3 |"
+
+
+def test_tracking_figures_find_a_known_lag_overshoot_and_settling():
+    """A record made up to known answers: the vehicle 0.3 s behind a 1 m/s line to x = 10 m,
+    then past its end by 0.6 exp(-t / 0.5) m (sampled at 20 Hz)."""
+    from companion.gs.replay import Flight
+    from sitl.parity import tracking_figures
+
+    sp_t = np.arange(0.0, 15.0, 0.02)
+    sp_p = np.zeros((len(sp_t), 3))
+    sp_p[:, 0] = np.minimum(sp_t, 10.0)
+    source = ["p-0" if t <= 10.0 else "hold" for t in sp_t]
+    tel_t = np.arange(0.0, 15.0, 0.05)
+    x = np.where(tel_t <= 10.3, np.clip(tel_t - 0.3, 0.0, 10.0),
+                 10.0 + 0.6 * np.exp(-(tel_t - 10.3) / 0.5))
+    pos = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    f = Flight(config={}, tel_t=tel_t, position=pos, velocity=np.zeros_like(pos),
+               tracking_error=np.zeros(len(tel_t)), sp_t=sp_t, sp_p=sp_p,
+               sp_v=np.zeros_like(sp_p), sp_a=np.zeros_like(sp_p), sp_source=source,
+               retimed=[(-1.0, {"id": "p-0"})], map=None, commands=[], statuses=[])
+    fig = tracking_figures(f)
+    assert fig["lag_s"] == pytest.approx(0.3, abs=0.011)
+    # (the first 0.3 s the vehicle waits at 0 while the line leaves: a little more than 0.3)
+    assert 0.29 < fig["rms_tracking_error_m"] < 0.31
+    assert fig["overshoot_m"] == pytest.approx(0.6 * math.exp(-0.05 / 0.5), abs=1e-3)
+    assert fig["settle_s"] == pytest.approx(0.40, abs=1e-6)  # first sample under 0.5 m
+
+
+def test_tracking_figures_say_when_the_vehicle_never_settles():
+    from companion.gs.replay import Flight
+    from sitl.parity import tracking_figures
+
+    sp_t = np.arange(0.0, 8.0, 0.02)
+    sp_p = np.column_stack([np.minimum(sp_t, 3.0), np.zeros(len(sp_t)), np.zeros(len(sp_t))])
+    tel_t = np.arange(0.0, 8.0, 0.05)
+    pos = np.column_stack([np.where(tel_t < 3.0, tel_t, 4.0), np.zeros(len(tel_t)),
+                           np.zeros(len(tel_t))])  # 1 m past the end, staying there
+    f = Flight(config={}, tel_t=tel_t, position=pos, velocity=np.zeros_like(pos),
+               tracking_error=np.zeros(len(tel_t)), sp_t=sp_t, sp_p=sp_p,
+               sp_v=np.zeros_like(sp_p), sp_a=np.zeros_like(sp_p),
+               sp_source=["p-0" if t <= 3.0 else "hold" for t in sp_t],
+               retimed=[(-1.0, {"id": "p-0"})], map=None, commands=[], statuses=[])
+    fig = tracking_figures(f)
+    assert fig["settle_s"] is None and fig["overshoot_m"] == pytest.approx(1.0)
+    assert table([{"backend": "px4", "runs": [{**_run(12.0, 0.5), **fig}], "failed": []}],
+                 (("settle_s", "settled", "s"),), reached=False).splitlines()[-1] \
+        == "| settled (s) | - [1 without] |"
