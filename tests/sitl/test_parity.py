@@ -28,8 +28,20 @@ def test_the_table_counts_failed_runs_and_collisions():
            "failed": ["run 3: TimeoutError: the goal"]}
     text = table([sitl, px4])
     assert "`sitl` (2 of 2 runs)" in text and "`px4` (2 of 3 runs)" in text
-    assert "| flight time to the goal (s) | 12.5 ± 0.707 (12-13) | 18.5 ± 0.707 (18-19) |" in text
-    assert text.splitlines()[-1] == "| reached the goal without a collision | 2 of 2 | 1 of 3 |"
+    # the means 6 s apart, PX4's sd 0.707 s: outside two of them
+    assert ("| flight time to the goal (s) | 12.5 ± 0.707 (12-13) | 18.5 ± 0.707 (18-19) | -6 "
+            "| no (±1.41) |") in text
+    assert "| max tracking error (the service's) (m) | 0.4 ± 0 (0.4-0.4) | 0.4 ± 0 (0.4-0.4) " \
+           "| +0 | yes (±0) |" in text
+    assert text.splitlines()[-1] == "| reached the goal without a collision | 2 of 2 | 1 of 3 | | |"
+
+
+def test_match_is_the_mean_difference_against_two_px4_sd():
+    from sitl.parity import match
+
+    assert match([1.0, 1.2], [1.0, 2.0, 3.0]) == pytest.approx((-0.9, 2.0, True))
+    assert match([4.5], [1.0, 2.0, 3.0])[2] is False  # 2.5 from PX4's mean, band 2.0
+    assert match([1.0], [2.0]) is None and match([], [1.0, 2.0]) is None
 
 
 def test_tracking_figures_find_a_known_lag_overshoot_and_settling():
