@@ -157,3 +157,24 @@ def test_the_service_is_wired_through_constructors():
              "        self.a.b = lambda: 1\n        self.commander.state = State.STOPPING\n"
     assert callbacks_wired_after(sample) == [3, 4]
     assert callbacks_wired_after((ROOT / "companion" / "service.py").read_text()) == []
+
+
+#: What a decode worker must not load (each costs memory in every worker process, and the
+#: first is what filterpy brings: scipy.stats): the estimator, the recorder, MAVLink and
+#: the network stacks belong to the service's own process
+NOT_IN_A_DECODE_WORKER = ("filterpy", "scipy.stats", "mcap", "foxglove", "mavsdk", "zenoh",
+                          "numba", "rota.retime")
+
+
+def test_a_decode_worker_loads_what_it_decodes_with_and_no_more():
+    """Measured in a fresh interpreter: the modules a decode worker imports
+    (companion.network.decoder, and the messages it decodes into)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, companion.network.decoder, companion.messages\n"
+            f"bad = [m for m in {NOT_IN_A_DECODE_WORKER!r} if m in sys.modules]\n"
+            "print(' '.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "", f"a decode worker loads {out.stdout.strip()}"

@@ -31,7 +31,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -40,25 +39,13 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
 from companion.recording.foxglove import Scene, Schema
+from companion.recording.settings import RecordSettings
 
 log = logging.getLogger("rota.record")
 
 #: Chunk size: a crash loses at most one unfinished chunk (a few seconds of flight).
 CHUNK_BYTES = 64 * 1024
 LIBRARY = "rota-companion"
-
-
-@dataclass(frozen=True)
-class RecordSettings:
-    """``[record]`` of the service's configuration."""
-
-    enabled: bool = True
-    dir: str = ""  # "" = <state_dir>/records
-    max_file_mb: float = 100.0  # start a new file beyond this size
-    max_total_mb: float = 2000.0  # delete the oldest records beyond this total
-    queue: int = 20000  # messages waiting for the writer; more are dropped and counted
-    # also write the flight in Foxglove's schemas (companion.recording.foxglove)
-    foxglove: bool = True
 
 
 def _jsonable(x: Any) -> Any:

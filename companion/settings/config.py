@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 from companion.protocol import KEY_PREFIX, vehicle_key
-from companion.recording.record import RecordSettings
+from companion.recording.settings import RecordSettings
 from companion.ros2.settings import Ros2Settings
 from companion.ros2.settings import check as check_ros2
-from companion.uncertainty.estimator import EstimatorSettings
+from companion.uncertainty.settings import EstimatorSettings
 from rota.braking import BrakingParams
 from rota.chance import DEFAULT_MEMORY_S, ChanceParams, UncertaintyModel
 from rota.errors import InputError
