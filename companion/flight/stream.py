@@ -523,13 +523,12 @@ class SetpointStream:
         limits (:mod:`companion.flight.heading`); ``[stream] yaw = "hold"`` keeps the
         start's."""
         s = self._cfg().stream
-        planned = self.source.yaw_ned_deg(now) if isinstance(self.source, Plan) else None
-        if s.yaw == "hold":
-            pass
-        elif planned is not None:
-            self.yaw_target = planned
-        elif s.yaw == "path" and np.linalg.norm(cmd.velocity[:2]) > 0.3:
-            self.yaw_target = heading_ned_deg(cmd.velocity)
+        if s.yaw == "path":
+            planned = self.source.yaw_ned_deg(now) if isinstance(self.source, Plan) else None
+            if planned is not None:
+                self.yaw_target = planned
+            elif np.linalg.norm(cmd.velocity[:2]) > 0.3:
+                self.yaw_target = heading_ned_deg(cmd.velocity)
         self.heading = self.heading.toward(self.yaw_target, 1.0 / s.rate_hz,
                                            s.yaw_rate_max_deg_s, s.yaw_accel_max_deg_s2)
         self.yaw_ned = self.heading.yaw_deg
