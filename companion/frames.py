@@ -31,6 +31,12 @@ def yaw_enu_to_ned_deg(yaw_enu_rad: float) -> float:
     return (math.degrees(math.pi / 2 - yaw_enu_rad) + 180.0) % 360.0 - 180.0
 
 
+def yaw_ned_to_enu_deg(yaw_ned_deg: float) -> float:
+    """NED yaw (from north, clockwise, deg) -> ENU yaw (from east, counter-clockwise,
+    deg), -180 to 180. The same map takes ENU to NED (90 - yaw both ways)."""
+    return (90.0 - yaw_ned_deg + 180.0) % 360.0 - 180.0
+
+
 def heading_ned_deg(velocity_enu: ArrayLike) -> float:
     """NED yaw (deg) that faces along an ENU velocity."""
     v = np.asarray(velocity_enu, dtype=float)

@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 
 from companion.flight.reaction import Timing
-from companion.frames import SIGN, SWAP, ned_to_enu
+from companion.frames import SIGN, SWAP, ned_to_enu, yaw_ned_to_enu_deg
 from companion.protocol import COMMANDS, CONFIG, REPLY, STATUS, TELEMETRY  # noqa: F401 - msgs.X
 from companion.settings.config import Config
 from rota.errors import InputError
-from rota.schema import VERSION, TrajectoryMessage, trajectory_from_dict
+from rota.schema import VERSION, Heading, TrajectoryMessage, trajectory_from_dict
 from rota.trajectory import (
     BSplineTrajectory,
     PolynomialTrajectory,
@@ -54,6 +54,7 @@ class Incoming:
     frame: str
     stamp: float | None
     timing: Timing | None = None  #: its way through the service, for the reaction time
+    heading: Heading | None = None  #: the planner's heading, ENU degrees
 
 
 def decode(payload: bytes, what: str, max_depth: int = 16,
@@ -108,7 +109,7 @@ def _precheck_trajectory(raw: Any, cfg: Config) -> None:
     if not isinstance(raw, dict):
         return  # trajectory_from_dict names the problem
     cap = cfg.safety.max_trajectory_points
-    for name in ("control_points", "t", "durations"):
+    for name in ("control_points", "t", "durations", "yaw"):
         value = raw.get(name)
         if isinstance(value, list) and len(value) > cap:
             raise Rejected(f"trajectory: {name}: {len(value)} entries is over the cap "
@@ -167,7 +168,10 @@ def check_trajectory(msg: TrajectoryMessage, cfg: Config, what: str,
         raise Rejected(f"{what}: leaves the geofence at tau={tau[i]:.2f} s, position "
                        f"{np.round(p[i], 2).tolist()} (ENU; fence {lo.tolist()} to "
                        f"{hi.tolist()})")
-    return Incoming(msg.id, traj, msg.frame, msg.stamp)
+    heading = msg.heading
+    if heading is not None and msg.frame == "NED":
+        heading = heading.mapped(yaw_ned_to_enu_deg)
+    return Incoming(msg.id, traj, msg.frame, msg.stamp, heading=heading)
 
 
 def parse_map(payload: bytes, cfg: Config, now: float | None = None) -> VoxelMap:

@@ -39,18 +39,54 @@ FRAMES = ("ENU", "NED")
 
 
 @dataclass(frozen=True)
+class Heading:
+    """The planner's heading along a trajectory: ``yaw_deg[k]`` at trajectory time
+    ``t0 + k dt`` (degrees, in the message's frame: ENU counter-clockwise from east,
+    NED clockwise from north), as EGO-Planner's ``yaw_pts`` / ``yaw_dt``. Between
+    samples it turns the short way (linearly, unwrapped); before the first and after
+    the last it holds them. Not part of the re-timing: the flight service streams it
+    within its yaw-rate and yaw-acceleration limits."""
+
+    yaw_deg: tuple[float, ...]
+    dt: float
+    t0: float = 0.0
+
+    def __post_init__(self) -> None:
+        yaw = np.asarray(self.yaw_deg, dtype=float)
+        if yaw.ndim != 1 or not len(yaw) or not np.all(np.isfinite(yaw)):
+            raise InputError("yaw", "must be a non-empty list of finite numbers (degrees)")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise InputError("yaw_dt", f"must be a positive number (s), got {self.dt!r}")
+        object.__setattr__(self, "yaw_deg", tuple(float(y) for y in yaw))
+        # (the short way between samples, and the samples' times: once, not per call)
+        object.__setattr__(self, "_unwrapped", np.degrees(np.unwrap(np.radians(yaw))))
+        object.__setattr__(self, "_times", np.arange(len(yaw)) * self.dt + self.t0)
+
+    def at(self, tau: float) -> float:
+        """The heading (degrees, -180 to 180) at trajectory time ``tau``."""
+        yaw = np.interp(tau, self._times, self._unwrapped)  # type: ignore[attr-defined]
+        return float((yaw + 180.0) % 360.0 - 180.0)
+
+    def mapped(self, fn: Any) -> Heading:
+        """The same heading with each sample mapped by ``fn`` (e.g. to another frame)."""
+        return Heading(tuple(fn(y) for y in self.yaw_deg), self.dt, self.t0)
+
+
+@dataclass(frozen=True)
 class TrajectoryMessage:
-    """A trajectory with its envelope: id, coordinate frame and time stamp."""
+    """A trajectory with its envelope: id, coordinate frame and time stamp, and the
+    planner's heading if it sends one."""
 
     trajectory: Trajectory
     id: str = ""
     frame: str = "ENU"
     stamp: float | None = None  # UNIX time (s) at which the planner published it
+    heading: Heading | None = None
 
 
 #: The fields of a trajectory message: every kind's, then each ``type``'s own.
 TRAJECTORY_FIELDS = ("schema", "version", "id", "frame", "stamp", "type", "start",
-                     "start_offset", "start_blend")
+                     "start_offset", "start_blend", "yaw", "yaw_dt")
 TYPE_FIELDS = {"bspline": ("degree", "control_points", "knot_span", "knots"),
                "polynomial": ("durations", "coefficients"),
                "samples": ("t", "p", "v", "a")}
@@ -127,6 +163,16 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
         if isinstance(exc, InputError):
             raise
         raise InputError("(trajectory)", str(exc)) from None
+    heading = None
+    if d.get("yaw") is not None or d.get("yaw_dt") is not None:
+        yaw, dt = d.get("yaw"), d.get("yaw_dt")
+        if not isinstance(yaw, list) or any(isinstance(y, bool) or not isinstance(y, int | float)
+                                            for y in yaw):
+            raise InputError("yaw", f"must be a list of numbers (degrees), got {_short(yaw)}")
+        if isinstance(dt, bool) or not isinstance(dt, int | float):
+            raise InputError("yaw_dt", f"must be a number (s between yaw samples), got "
+                                       f"{_short(dt)}")
+        heading = Heading(tuple(yaw), float(dt), traj.domain[0])
     if d.get("start") is not None or d.get("start_offset") is not None:
         start = traj.domain[0] if d.get("start") is None else d["start"]
         blend = d.get("start_blend", 0.0)
@@ -136,7 +182,12 @@ def trajectory_from_dict(d: object) -> TrajectoryMessage:
         traj = Window(base=traj, start=float(start), offset=d.get("start_offset"),
                       blend=float(blend))
     return TrajectoryMessage(traj, id=_optional_str(d, "id", ""), frame=frame,
-                             stamp=None if stamp is None else float(stamp))
+                             stamp=None if stamp is None else float(stamp), heading=heading)
+
+
+def _short(x: Any) -> str:
+    text = repr(x)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _require_int(d: dict[str, Any], key: str, default: int) -> int:
@@ -161,6 +212,10 @@ def trajectory_to_dict(msg: TrajectoryMessage) -> dict[str, Any]:
         traj = traj.base
     if msg.stamp is not None:
         out["stamp"] = msg.stamp
+    if msg.heading is not None:
+        if abs(msg.heading.t0 - traj.domain[0]) > 1e-9:
+            raise TypeError("only a heading from the trajectory's start serialises")
+        out.update(yaw=list(msg.heading.yaw_deg), yaw_dt=msg.heading.dt)
     if isinstance(traj, BSplineTrajectory):
         out.update(type="bspline", degree=int(traj.degree),
                    control_points=traj.control_points.tolist())

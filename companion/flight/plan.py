@@ -11,13 +11,16 @@ a budget.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from companion.flight.reaction import Timing
+from companion.frames import yaw_enu_to_ned_deg
 from rota.result import RetimeResult
+from rota.schema import Heading
 from rota.trajectory import smootherstep_fade
 
 FloatArray = NDArray[np.float64]
@@ -67,6 +70,7 @@ class Plan:
     blend_s: float = 1.0
     blend_t0: float | None = None
     timing: Timing | None = None  #: its trajectory's way here (the reaction time)
+    heading: Heading | None = None  #: the planner's heading (ENU degrees), if it sent one
 
     @property
     def _blend_start(self) -> float:
@@ -83,6 +87,14 @@ class Plan:
         """Share of the plan's duration flown, 0..1."""
         d = self.result.duration
         return float(np.clip((now - self.t0) / d, 0.0, 1.0)) if d > 0 else 1.0
+
+    def yaw_ned_deg(self, now: float) -> float | None:
+        """The planner's heading where the plan is at ``now`` (NED degrees; None if the
+        planner sent none): its trajectory time from the re-timed time map."""
+        if self.heading is None:
+            return None
+        tau = float(self.result.timemap.evaluate(max(now - self.t0, 0.0))[0][0])
+        return yaw_enu_to_ned_deg(math.radians(self.heading.at(tau)))
 
     def command(self, now: float) -> Command:
         sp = self.result.sample(max(now - self.t0, 0.0))

@@ -196,4 +196,5 @@ class Replanner:
         # have moved on alike since (the stream refuses a takeover whose gap is too big)
         timing = incoming.timing and replace(incoming.timing, started=started, retimed=retimed,
                                              offered=time.monotonic())
-        self.stream.offer(Plan(incoming.id, result, t_take, timing=timing))
+        self.stream.offer(Plan(incoming.id, result, t_take, timing=timing,
+                               heading=incoming.heading))

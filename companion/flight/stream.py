@@ -464,7 +464,7 @@ class SetpointStream:
             if self.check(cmd, now):  # nothing safe to send: stop, PX4's failsafe acts
                 self._end(f"no safe setpoint after: {problem}")
                 return
-        self._update_yaw(cmd)
+        self._update_yaw(cmd, now)
         not_after, silence = wall + self._cfg().stream.stall_budget_s, math.inf
         if self.last_sent is not None:
             silence = self.resume_limit()
@@ -517,12 +517,18 @@ class SetpointStream:
         cfg = self._cfg()
         return cfg.limits.v_max + blend_speed(cfg.safety.stitch_tolerance_m)
 
-    def _update_yaw(self, cmd: Command) -> None:
-        """The next yaw: toward the path's direction (or the start's), within the yaw
-        rate and acceleration limits (:mod:`companion.flight.heading`)."""
+    def _update_yaw(self, cmd: Command, now: float) -> None:
+        """The next yaw: toward the planner's heading if the plan flown has one, else
+        the path's direction (or the start's), within the yaw rate and acceleration
+        limits (:mod:`companion.flight.heading`); ``[stream] yaw = "hold"`` keeps the
+        start's."""
         s = self._cfg().stream
-        if s.yaw == "path" and np.linalg.norm(cmd.velocity[:2]) > 0.3:
-            self.yaw_target = heading_ned_deg(cmd.velocity)
+        if s.yaw == "path":
+            planned = self.source.yaw_ned_deg(now) if isinstance(self.source, Plan) else None
+            if planned is not None:
+                self.yaw_target = planned
+            elif np.linalg.norm(cmd.velocity[:2]) > 0.3:
+                self.yaw_target = heading_ned_deg(cmd.velocity)
         self.heading = self.heading.toward(self.yaw_target, 1.0 / s.rate_hz,
                                            s.yaw_rate_max_deg_s, s.yaw_accel_max_deg_s2)
         self.yaw_ned = self.heading.yaw_deg

@@ -18,6 +18,7 @@ Any problem raises :class:`companion.messages.Rejected` naming the topic and fie
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Any
 
@@ -27,7 +28,7 @@ from companion.messages import Incoming, Rejected, check_age, check_trajectory
 from companion.ros2.types import MULTIDOF, PATH, POINTCLOUD, typestore
 from companion.settings.config import Config
 from rota.errors import InputError
-from rota.schema import TrajectoryMessage
+from rota.schema import Heading, TrajectoryMessage
 from rota.trajectory import BSplineTrajectory, SampledTrajectory
 from rota.voxelmap import VoxelMap
 
@@ -124,8 +125,8 @@ def message_id(kind: str, m: Any) -> str:
 
 
 def _finish(traj: Any, ident: str, stamp: float | None, what: str, cfg: Config,
-            now: float | None) -> Incoming:
-    msg = TrajectoryMessage(traj, id=ident, frame="ENU", stamp=stamp)
+            now: float | None, heading: Heading | None = None) -> Incoming:
+    msg = TrajectoryMessage(traj, id=ident, frame="ENU", stamp=stamp, heading=heading)
     return check_trajectory(msg, cfg, f"{what} {ident!r}", now)
 
 
@@ -133,8 +134,11 @@ def _finish(traj: Any, ident: str, stamp: float | None, what: str, cfg: Config,
 def decode_bspline(payload: bytes, cfg: Config, now: float | None = None) -> Incoming:
     """``traj_utils/Bspline`` (EGO-Planner, Fast-Planner): ``order`` is the degree,
     ``knots`` the full knot vector, ``pos_pts`` the control points, ``start_time``
-    the stamp; ``yaw_pts`` are not used (the service sets the yaw, ``[stream] yaw``).
-    A Bspline has no header: it is taken in ``[ros2] frame_id``."""
+    the stamp; ``yaw_pts`` (ENU radians), if any, the planner's heading at the
+    trajectory's start plus k ``yaw_dt``: they are the control points of the
+    planner's uniform yaw B-spline, which a smooth heading follows closely (the
+    service streams it within its yaw limits; none: it faces along the path). A
+    Bspline has no header: it is taken in ``[ros2] frame_id``."""
     s = cfg.ros2
     what = f"bspline {s.bspline_topic}"
     m = _deserialize(payload, s.bspline_type, "bspline", cfg, what)
@@ -148,7 +152,17 @@ def decode_bspline(payload: bytes, cfg: Config, now: float | None = None) -> Inc
     except InputError as exc:
         raise _ros_error(exc, what, {"control_points": "pos_pts", "degree": "order",
                                      "knots": "knots[{i}]"}) from None
-    return _finish(traj, message_id("bspline", m), stamp, what, cfg, now)
+    heading = None
+    yaw = np.asarray(m.yaw_pts, dtype=float)
+    if len(yaw) > cfg.safety.max_trajectory_points:
+        raise Rejected(f"{what}: yaw_pts: {len(yaw)} entries is over the cap of "
+                       f"{cfg.safety.max_trajectory_points}")
+    if len(yaw):
+        _finite(yaw, what, "yaw_pts[{i}]")
+        if not (math.isfinite(m.yaw_dt) and m.yaw_dt > 0):
+            raise Rejected(f"{what}: yaw_dt: must be positive with yaw_pts, got {m.yaw_dt!r}")
+        heading = Heading(tuple(np.degrees(yaw)), float(m.yaw_dt), traj.domain[0])
+    return _finish(traj, message_id("bspline", m), stamp, what, cfg, now, heading)
 
 
 def decode_path(payload: bytes, cfg: Config, now: float | None = None) -> Incoming:

@@ -59,6 +59,10 @@ RULES: dict[tuple[str, str], Rule] = {
                                     "vehicle keeps (or brakes on) the plan it has"),
     ("limits", "solver_max_iter"): Rule("max", "fewer iterations lead to the uniformly slowed "
                                         "fallback, which keeps every speed limit"),
+    ("stream", "yaw_rate_max_deg_s"): Rule("max", "a lower limit only turns the heading more "
+                                           "slowly (it stays continuous either way)"),
+    ("stream", "yaw_accel_max_deg_s2"): Rule("max", "a lower limit only changes the heading's "
+                                             "turn rate more gently"),
     ("safety", "geofence_min"): Rule("min", "the geofence may only shrink"),
     ("safety", "geofence_max"): Rule("max", "the geofence may only shrink"),
     ("safety", "max_message_age_s"): Rule("max", "a lower age refuses more stale trajectories "
@@ -97,6 +101,8 @@ FIXED: dict[tuple[str, str], str] = {
         "imposed: a coarser grid misses them and a finer one moves them, and either can "
         "raise a limit near an obstacle (docs/security.md)"),
     ("uncertainty", "per_axis"): "neither reading of the model is more cautious everywhere",
+    ("stream", "rate_hz"): "the stream's budgets and PX4's offboard-loss margin are counted "
+                           "in its ticks",
 }
 
 

@@ -34,7 +34,7 @@ from companion.settings.envelope import check_change
 from companion.status import Reporter
 
 #: Settings that can change at run time through the config queryable.
-RUNTIME_SECTIONS = ("limits", "safety", "uncertainty")  # [estimator]: the estimator query
+RUNTIME_SECTIONS = ("limits", "safety", "uncertainty", "stream")  # [estimator]: its query
 CONFIG_FORM = '{"set": {section: {name: value}}}'
 
 

@@ -255,10 +255,15 @@ def _reconfigure():
 
 @pytest.mark.parametrize(("changes", "words"), [
     ({"limit": {"v_max": 1.0}}, "[limit]: unknown section 'limit' (did you mean 'limits'? "
-                                "sections that change at run time: limits, safety, uncertainty)"),
+                                "sections that change at run time: limits, safety, uncertainty, "
+                                "stream)"),
     ({"zzz": {"v_max": 1.0}}, "unknown section 'zzz' (sections that change at run time"),
-    ({"stream": {"rate_hz": 10}}, "[stream]: cannot change at run time (only limits, safety, "
-                                  "uncertainty can"),
+    ({"mavlink": {"url": "x"}}, "[mavlink]: cannot change at run time (only limits, "
+                                    "safety, uncertainty, stream can"),
+    ({"stream": {"rate_hz": 10}}, "[stream] rate_hz: cannot change at run time (the stream's "
+                                  "budgets and PX4's offboard-loss margin are counted"),
+    ({"stream": {"yaw": "hold"}}, "[stream] yaw: cannot change at run time (only the config "
+                                  "file sets it"),
     ({"limits": {"vmax": 1.0}}, "[limits] vmax: unknown setting 'vmax' (did you mean 'v_max'? "
                                 "known: a_max, dtau"),
     ({"uncertainty": {"per_axis": True}}, "[uncertainty] per_axis: cannot change at run time"),
@@ -271,6 +276,19 @@ def test_config_requests_name_what_is_wrong(changes, words):
         rc.apply({"set": changes}, "p")
     assert words in str(err.value)
     assert state["cfg"] == FILE
+
+
+def test_the_heading_limits_only_tighten_at_run_time():
+    rc, state = _reconfigure()
+    rc.apply({"set": {"stream": {"yaw_rate_max_deg_s": 30.0, "yaw_accel_max_deg_s2": 60.0}}},
+             "p")
+    assert state["cfg"].stream.yaw_rate_max_deg_s == 30.0
+    assert state["cfg"].stream.yaw_accel_max_deg_s2 == 60.0
+    with pytest.raises(ConfigError, match=r"\[stream\] yaw_rate_max_deg_s: 90(\.0)? refused; "
+                       r"allowed: at most 45(\.0)? \(the config file's value\), as a lower "
+                       "limit only turns the heading more slowly"):
+        rc.apply({"set": {"stream": {"yaw_rate_max_deg_s": 90.0}}}, "p")
+    assert state["cfg"].stream.yaw_rate_max_deg_s == 30.0
 
 
 def test_a_long_section_name_is_capped_in_the_answer():

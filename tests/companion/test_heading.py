@@ -75,7 +75,7 @@ def test_the_stream_turns_to_a_new_plans_direction_without_a_step():
     east, west = (Command(np.zeros(3), np.array(v, float)) for v in ([2, 0, 0], [-2, 0, 0]))
     sent = []
     for k in range(400):
-        s._update_yaw(east if k < 50 else west)
+        s._update_yaw(east if k < 50 else west, 0.0)
         sent.append(s.yaw_ned)
     steps = np.abs([wrap_deg(b - a) for a, b in zip(sent[:-1], sent[1:], strict=True)])
     limit = cfg.stream.yaw_rate_max_deg_s / cfg.stream.rate_hz

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import tempfile
 import time
 from collections import Counter
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 from companion.flight.plan import blend_speed
+from companion.frames import yaw_enu_to_ned_deg
 from companion.recording.record import read
 from sitl.demo import (
     DEMO_ALTITUDE_M,
@@ -252,3 +254,42 @@ def test_auto_start_flies_without_commands_and_tracking_error_brakes():
                                 safety={"max_tracking_error_m": 0.05})
     assert "prestream" in states and states.index("prestream") < states.index("offboard")
     assert not report.collisions
+
+
+def test_the_planners_heading_reaches_the_vehicle_in_ned_within_the_yaw_limits():
+    """A trajectory that carries the planner's heading (``yaw``, ENU degrees), a quarter
+    turn off the path's direction: over real UDP and Zenoh, the yaw the vehicle received
+    turns to it (in NED) within ``[stream] yaw_rate_max_deg_s`` and holds it while the
+    path goes on the other way."""
+    async def scenario(gs, service, sim, world):
+        home = sim.home_enu
+        await take_off(gs, world, home)
+        here = await start_holding(gs) + home
+        goal = np.array([world.goal[0], world.goal[1], here[2]])
+        traj = await plan_async(world, v_max=SPEED, a_max=2.0, start=here, goal=goal)
+        way = goal - here
+        path_enu = math.degrees(math.atan2(way[1], way[0]))
+        planned_enu = path_enu + 90.0  # facing left of the way to the goal
+        msg = trajectory_message(to_local(traj, home), "yawed")
+        msg.update(yaw=[planned_enu], yaw_dt=1.0)
+        gs.publish("trajectory", msg)
+        await gs.wait_for(lambda s: s.get("trajectory_id") == "yawed", 30, "the plan")
+        t0 = time.monotonic()
+        await gs.wait_for(lambda s: s.get("command") == "hold"
+                          and s.get("trajectory_id") is None, 60, "the end of the plan")
+        return planned_enu, (t0, time.monotonic()), service.cfg.stream
+
+    (planned_enu, window, stream), report = run_flight(scenario)
+    want_ned = yaw_enu_to_ned_deg(math.radians(planned_enu))
+    sp = report.setpoints
+    inside = (sp["wall_time"] >= window[0]) & (sp["wall_time"] <= window[1])
+    yaw, wall = sp["yaw_ned_deg"][inside], sp["wall_time"][inside]
+    # a quarter turn at 45 deg/s (and 90 deg/s^2 to speed up and slow down): 3 s at most
+    settled = wall >= window[0] + 3.0
+    off = np.abs((yaw[settled] - want_ned + 180.0) % 360.0 - 180.0)
+    turned = fastest_yaw_rate(sp, 1.0 / stream.rate_hz, window)
+    print(f"planner's heading NED {want_ned:.1f} deg: received {yaw[settled][0]:.1f} to "
+          f"{yaw[settled][-1]:.1f} after 3 s (largest miss {off.max():.2f} deg); fastest "
+          f"turn {turned:.1f} deg/s")
+    assert settled.sum() > 50 and off.max() < 0.5
+    assert turned <= stream.yaw_rate_max_deg_s * 1.001

@@ -84,12 +84,15 @@ CPS = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1], [1, 0.5, 1], [2, 1, 1.5], [3, 1
 DT = 0.4
 
 
-def bspline_cdr(cps=CPS, order=3, dt=DT, t=None, ts=TS, **extra) -> bytes:
-    """EGO-Planner's message: uniform knots starting at -order * dt."""
+def bspline_cdr(cps=CPS, order=3, dt=DT, t=None, ts=TS, yaw_pts=(), yaw_dt=None,
+                **extra) -> bytes:
+    """EGO-Planner's message: uniform knots starting at -order * dt (``yaw_pts``: ENU
+    radians every ``yaw_dt``, default ``dt``)."""
     knots = (np.arange(len(cps) + order + 1) - order) * dt
     msg = ts.types[BSPLINE](order=order, traj_id=17, start_time=stamp(t), knots=knots,
-                            pos_pts=[point(p) for p in cps], yaw_pts=np.zeros(0),
-                            yaw_dt=dt, **extra)
+                            pos_pts=[point(p) for p in cps],
+                            yaw_pts=np.asarray(yaw_pts, dtype=float),
+                            yaw_dt=dt if yaw_dt is None else yaw_dt, **extra)
     return bytes(ts.serialize_cdr(msg, BSPLINE))
 
 
