@@ -10,42 +10,17 @@ The re-timer's inner loops are compiled (numba) on first use and cached on disk;
 call :func:`warm_up` once before the first re-time that must be fast.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
-
-#: Where each public name lives: loaded on first use (PEP 562), so a process that needs
-#: one small module (a decode worker: the trajectory and map types) does not load the
-#: solver (Clarabel, the compiled kernels) with the package
-_HOMES = {
-    "InputError": "rota.errors", "Limits": "rota.problem", "RetimeInput": "rota.problem",
-    "SolverSettings": "rota.problem", "make_grid": "rota.problem",
-    "RetimeResult": "rota.result", "Setpoints": "rota.result", "retime": "rota.retime",
-    "BSplineTrajectory": "rota.trajectory", "PolynomialTrajectory": "rota.trajectory",
-    "SampledTrajectory": "rota.trajectory", "Trajectory": "rota.trajectory",
-    "warm_up": "rota.warmup",
-}
-
-if TYPE_CHECKING:
-    from rota.errors import InputError
-    from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
-    from rota.result import RetimeResult, Setpoints
-    from rota.retime import retime
-    from rota.trajectory import (
-        BSplineTrajectory,
-        PolynomialTrajectory,
-        SampledTrajectory,
-        Trajectory,
-    )
-    from rota.warmup import warm_up
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module 'rota' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_HOMES[name]), name)
-    globals()[name] = value
-    return value
-
+from rota.errors import InputError
+from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
+from rota.result import RetimeResult, Setpoints
+from rota.retime import retime
+from rota.trajectory import (
+    BSplineTrajectory,
+    PolynomialTrajectory,
+    SampledTrajectory,
+    Trajectory,
+)
+from rota.warmup import warm_up
 
 __all__ = [
     "BSplineTrajectory",

@@ -163,7 +163,7 @@ def test_the_service_is_wired_through_constructors():
 #: first is what filterpy brings: scipy.stats): the estimator, the recorder, MAVLink and
 #: the network stacks belong to the service's own process
 NOT_IN_A_DECODE_WORKER = ("filterpy", "scipy.stats", "mcap", "foxglove", "mavsdk", "zenoh",
-                          "numba", "rota.retime")
+                          "numba")
 
 
 def test_a_decode_worker_loads_what_it_decodes_with_and_no_more():

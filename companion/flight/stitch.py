@@ -3,8 +3,6 @@ functions; they run in the re-time worker, off the event loop)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from companion.flight.plan import blend_time
@@ -15,11 +13,17 @@ class StitchError(ValueError):
     """The new trajectory cannot take over from the commanded state."""
 
 
+#: The join's refinement: passes of this many points around the best one (the bracket,
+#: two of the 2001-point grid's steps at first, ends 8000 times narrower: under 1e-6 of
+#: the trajectory's duration)
+REFINE_PASSES, REFINE_POINTS = 3, 41
+
+
 def nearest_tau(traj: Trajectory, position: np.ndarray, tolerance: float) -> float:
     """Trajectory time where the vehicle joins the path: the nearest point of the
     first stretch of the path that comes within ``tolerance`` of ``position`` (so
     a path that loops back past the vehicle later is not joined there), refined
-    by golden-section search; the global nearest point if none comes that close."""
+    around it; the global nearest point if none comes that close."""
     t0, t1 = traj.domain
     tau = np.linspace(t0, t1, 2001)
     d = np.linalg.norm(traj.position(tau) - position, axis=1)
@@ -31,15 +35,12 @@ def nearest_tau(traj: Trajectory, position: np.ndarray, tolerance: float) -> flo
     else:
         i = int(np.argmin(d))
     lo, hi = tau[max(i - 1, 0)], tau[min(i + 1, len(tau) - 1)]
-    g = (math.sqrt(5) - 1) / 2
-    for _ in range(40):
-        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
-        fa = np.linalg.norm(traj.position(a)[0] - position)
-        fb = np.linalg.norm(traj.position(b)[0] - position)
-        if fa < fb:
-            hi = b
-        else:
-            lo = a
+    # refined by three dense passes around the best point (one vectorised evaluation each,
+    # not 80 scalar ones: this runs for every replan), each shrinking the bracket 20-fold
+    for _ in range(REFINE_PASSES):
+        x = np.linspace(lo, hi, REFINE_POINTS)
+        k = int(np.argmin(np.linalg.norm(traj.position(x) - position, axis=1)))
+        lo, hi = x[max(k - 1, 0)], x[min(k + 1, REFINE_POINTS - 1)]
     return float(np.clip(0.5 * (lo + hi), t0, t1))
 
 
