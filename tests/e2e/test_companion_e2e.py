@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion.flight.plan import blend_speed
-from companion.frames import yaw_enu_to_ned_deg
+from companion.frames import yaw_enu_to_ned_deg, yaw_ned_to_enu_deg
 from companion.recording.record import read
 from sitl.demo import (
     DEMO_ALTITUDE_M,
@@ -257,19 +257,20 @@ def test_auto_start_flies_without_commands_and_tracking_error_brakes():
 
 
 def test_the_planners_heading_reaches_the_vehicle_in_ned_within_the_yaw_limits():
-    """A trajectory that carries the planner's heading (``yaw``, ENU degrees), a quarter
-    turn off the path's direction: over real UDP and Zenoh, the yaw the vehicle received
-    turns to it (in NED) within ``[stream] yaw_rate_max_deg_s`` and holds it while the
-    path goes on the other way."""
+    """A trajectory that carries the planner's heading (``yaw``, ENU degrees), 170 degrees
+    from the yaw held at its start: over real UDP and Zenoh, the yaw the vehicle received
+    turns to it (in NED) within ``[stream] yaw_rate_max_deg_s``, at that limit, and holds
+    it wherever the path goes."""
     async def scenario(gs, service, sim, world):
         home = sim.home_enu
         await take_off(gs, world, home)
         here = await start_holding(gs) + home
         goal = np.array([world.goal[0], world.goal[1], here[2]])
         traj = await plan_async(world, v_max=SPEED, a_max=2.0, start=here, goal=goal)
-        way = goal - here
-        path_enu = math.degrees(math.atan2(way[1], way[0]))
-        planned_enu = path_enu + 90.0  # facing left of the way to the goal
+        # the yaw held now is the start's (NED); the planner asks for nearly the opposite,
+        # so the vehicle must turn the whole way at the limit, whatever the path does
+        held_ned = float(gs.telemetry["setpoint"].get("yaw_ned_deg") or 0.0)
+        planned_enu = yaw_ned_to_enu_deg(held_ned + 170.0)
         msg = trajectory_message(to_local(traj, home), "yawed")
         msg.update(yaw=[planned_enu], yaw_dt=1.0)
         gs.publish("trajectory", msg)
@@ -284,12 +285,14 @@ def test_the_planners_heading_reaches_the_vehicle_in_ned_within_the_yaw_limits()
     sp = report.setpoints
     inside = (sp["wall_time"] >= window[0]) & (sp["wall_time"] <= window[1])
     yaw, wall = sp["yaw_ned_deg"][inside], sp["wall_time"][inside]
-    # a quarter turn at 45 deg/s (and 90 deg/s^2 to speed up and slow down): 3 s at most
-    settled = wall >= window[0] + 3.0
+    # 170 deg at 45 deg/s (and 90 deg/s^2 to speed up and slow down): 4.3 s; 6 s allowed
+    settled = wall >= window[0] + 6.0
     off = np.abs((yaw[settled] - want_ned + 180.0) % 360.0 - 180.0)
     turned = fastest_yaw_rate(sp, 1.0 / stream.rate_hz, window)
     print(f"planner's heading NED {want_ned:.1f} deg: received {yaw[settled][0]:.1f} to "
-          f"{yaw[settled][-1]:.1f} after 3 s (largest miss {off.max():.2f} deg); fastest "
+          f"{yaw[settled][-1]:.1f} after 6 s (largest miss {off.max():.2f} deg); fastest "
           f"turn {turned:.1f} deg/s")
     assert settled.sum() > 50 and off.max() < 0.5
-    assert turned <= stream.yaw_rate_max_deg_s * 1.001
+    # it turned at the limit (one tick's step at 45 deg/s, within the 1 % of a late tick's
+    # spacing), never faster
+    assert stream.yaw_rate_max_deg_s * 0.99 <= turned <= stream.yaw_rate_max_deg_s * 1.001
