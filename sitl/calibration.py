@@ -135,6 +135,26 @@ def replay(ref: dict[str, Any], run: str, seed: int = 0, until: float | None = N
 # ------------------------------------------------------------------ metrics
 
 
+def best_lag(tt: np.ndarray, pp: np.ndarray, at: Any, lags: np.ndarray
+             ) -> tuple[float, float]:
+    """(lag, RMS error at it): the time shift of the setpoints ``at(t)`` that minimises
+    the RMS distance of the positions ``pp`` (at times ``tt``) from them."""
+    rms = [math.sqrt(float(np.mean(np.sum((pp - at(tt - lag)) ** 2, axis=1)))) for lag in lags]
+    best = int(np.argmin(rms))
+    return float(lags[best]), rms[best]
+
+
+def settle_time(t: np.ndarray, dist: np.ndarray, t_end: float) -> float:
+    """When, after ``t_end``, the distances ``dist`` (at times ``t``) stay below SETTLE_M
+    for good: 0 if they always were, NaN if the last one is not."""
+    outside = np.flatnonzero(dist >= SETTLE_M)
+    if outside.size == 0:
+        return 0.0
+    if outside[-1] == dist.size - 1:
+        return math.nan
+    return float(t[outside[-1] + 1] - t_end)
+
+
 def tracking_metrics(ref: dict[str, Any], flight: Flight, phase: str, kind: str,
                      run: str = "tracking") -> TrackingMetrics:
     """Tracking metrics of one run of ``flight`` (PX4's or a replay) against its setpoints."""
@@ -144,10 +164,8 @@ def tracking_metrics(ref: dict[str, Any], flight: Flight, phase: str, kind: str,
     inside = (t >= t0) & (t <= t1)
     tt, pp = t[inside], pos[inside]
     err = np.linalg.norm(pp - setpoint_position(ref, run, tt), axis=1)
-    lags = np.arange(-0.3, 1.0, 0.01)
-    rms_lag = [math.sqrt(float(np.mean(np.sum((pp - setpoint_position(ref, run, tt - lag))**2,
-                                              axis=1)))) for lag in lags]
-    best = int(np.argmin(rms_lag))
+    lag, rms_lag = best_lag(tt, pp, lambda x: setpoint_position(ref, run, x),
+                            np.arange(-0.3, 1.0, 0.01))
     p_start, p_end = setpoint_position(ref, run, np.array([t0, t1]))
     hold = (t > t1) & (t <= t_hold)
     if kind == "line":
@@ -156,17 +174,10 @@ def tracking_metrics(ref: dict[str, Any], flight: Flight, phase: str, kind: str,
     else:
         overshoot = float(np.linalg.norm(pos[hold] - p_end, axis=1).max())
     after = (t > t1) & (t <= t1 + 2.0)
-    dist_end = np.linalg.norm(pos[hold] - p_end, axis=1)
-    outside = np.flatnonzero(dist_end >= SETTLE_M)
-    if outside.size == 0:
-        settle = 0.0
-    elif outside[-1] == dist_end.size - 1:
-        settle = math.nan  # not settled within the hold
-    else:
-        settle = float(t[hold][outside[-1] + 1] - t1)
+    settle = settle_time(t[hold], np.linalg.norm(pos[hold] - p_end, axis=1), t1)
     last = (t > t_hold - 1.0) & (t <= t_hold)
-    return TrackingMetrics(float(lags[best]), math.sqrt(float(np.mean(err**2))),
-                           float(err.max()), float(rms_lag[best]), overshoot,
+    return TrackingMetrics(lag, math.sqrt(float(np.mean(err**2))),
+                           float(err.max()), rms_lag, overshoot,
                            float(np.linalg.norm(pos[after] - p_end, axis=1).mean()),
                            float(np.linalg.norm(pos[last] - p_end, axis=1).mean()), settle)
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from companion.gs import replay
-from sitl.calibration import SETTLE_M
+from sitl.calibration import SETTLE_M, best_lag, settle_time
 
 #: How long the demo holds at the goal before it lands (s): the window of its overshoot
 #: and settling, as the recorded PX4 runs hold 4 s after each line (sitl/calibration.py)
@@ -87,22 +87,14 @@ def tracking_figures(f: replay.Flight) -> dict[str, float]:
 
     inside = (f.tel_t >= sp_t[0]) & (f.tel_t <= sp_t[-1])
     tt, pp = f.tel_t[inside], f.position[inside]
-    lags = np.arange(-0.3, 1.5, 0.01)
-    rms = [math.sqrt(float(np.mean(np.sum((pp - at(tt - lag)) ** 2, axis=1))))
-           for lag in lags]
+    lag, _ = best_lag(tt, pp, at, np.arange(-0.3, 1.5, 0.01))
     end = sp_p[-1]
     way = end - at(np.array([sp_t[-1] - 1.0]))[0]  # the last second of travel
     u = way / max(float(np.linalg.norm(way)), 1e-9)
     after = (f.tel_t > sp_t[-1]) & (f.tel_t <= sp_t[-1] + AFTER_S)
-    dist = np.linalg.norm(f.position[after] - end, axis=1)
-    outside = np.flatnonzero(dist >= SETTLE_M)
-    if outside.size == 0:
-        settle = 0.0
-    elif outside[-1] == dist.size - 1:
-        settle = math.nan
-    else:
-        settle = float(f.tel_t[after][outside[-1] + 1] - sp_t[-1])
-    return {"lag_s": round(float(lags[int(np.argmin(rms))]), 2),
+    settle = settle_time(f.tel_t[after], np.linalg.norm(f.position[after] - end, axis=1),
+                         sp_t[-1])
+    return {"lag_s": round(lag, 2),
             "rms_tracking_error_m": round(math.sqrt(float(np.mean(
                 np.sum((pp - at(tt)) ** 2, axis=1)))), 3),
             "overshoot_m": round(max(0.0, float(((f.position[after] - end) @ u).max())), 3)
