@@ -376,7 +376,7 @@ class Autopilot:
                      max_shift: float) -> bool:
         """The stand-in while the sender restarts: sends at once through MAVSDK's
         MAVLink-direct plugin (not after ``not_after``), the position moved along its
-        velocity to now (the setpoint was computed for ``at``, up to a period ahead).
+        velocity to now (the setpoint was computed for ``at``, up to the stream's lead ahead).
         It never waits: the stream's thread calls it holding the stream's lock."""
         now = time.monotonic()
         values = shifted(values, max(-max_shift, min(now - at, max_shift)))

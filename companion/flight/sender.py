@@ -11,9 +11,10 @@ percentile of the stream's gaps at 26 ms against its 25 ms budget, and beside tw
 busy loops at 33 ms. This process holds nothing but the next setpoints: it sleeps to
 a deadline, checks it and sends.
 
-How. The stream computes each setpoint one period ahead, for the deadline it is to
-go out at, and writes it here through a pipe (:meth:`SetpointSender.put`, one
-``os.write`` of :data:`RECORD` bytes). This process packs it as a MAVLink 2
+How. The stream computes each setpoint a few periods ahead
+(:data:`companion.flight.stream.LEAD_PERIODS`), for the deadline it is to go out at,
+and writes it here through a pipe (:meth:`SetpointSender.put`, one ``os.write`` of
+:data:`RECORD` bytes). This process packs it as a MAVLink 2
 SET_POSITION_TARGET_LOCAL_NED (pymavlink) stamped with the moment it really sends it
 (``time_boot_ms`` on the service's clock: a late send shows as a late stamp) and
 sends it over UDP on loopback to a link of the service's own MAVSDK with forwarding
@@ -303,8 +304,8 @@ def shifted(values: tuple[float, ...] | list[float], dt: float) -> tuple[float, 
     computed (checked against the limits; the plan's change over ``dt`` is under a
     millimetre of position at 3 m/s^2). A negative ``dt`` moves it back (a setpoint
     sent before its time: the stream's own stand-in while the sender restarts); 0 or
-    NaN: unchanged. The caller bounds ``dt`` by one period (at 2 m/s and 50 Hz, 4 cm
-    from the position the stream checked)."""
+    NaN: unchanged. The caller bounds ``dt`` by the stream's lead (two periods: at 2 m/s
+    and 50 Hz, 8 cm from the position the stream checked)."""
     if not (dt > 0 or dt < 0):
         return tuple(values)
     return (*(values[i] + values[3 + i] * dt for i in range(3)), *values[3:])

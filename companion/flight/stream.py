@@ -11,8 +11,8 @@ It runs in a thread of its own, not on the event loop, at a higher CPU priority
 than the rest of the service when it may (:func:`companion.flight.sender.raise_priority`):
 a tick then waits for no callback of the loop (a status being built, a reply, telemetry),
 only, at worst, for Python's GIL. That wait no longer delays the vehicle: each
-setpoint is computed one period ahead and put on the wire at its deadline by the
-setpoint sender, a process of its own that needs no GIL of the service's
+setpoint is computed :data:`LEAD_PERIODS` periods ahead and put on the wire at its
+deadline by the setpoint sender, a process of its own that needs no GIL of the service's
 (:mod:`companion.flight.sender`).
 The loop and the stream share the commanded state under one lock; what the
 stream tells the loop (a halt, its beat) it hands over with
@@ -87,6 +87,14 @@ LATE_TICK_S = 0.06
 #: stream milliseconds per tick. A late tick's account covers the time since the last
 #: reading (at most this many periods before it).
 CLOCK_EVERY = 10
+#: Each setpoint is computed this many periods before its deadline and handed to the
+#: sender process, which sends it at the deadline: a tick of the stream's thread may
+#: come this many periods late, less a little, and the vehicle sees nothing. One period
+#: was not enough in CI (two test workers on two cores beside real PX4): a tick held
+#: up 27 ms (the GIL's holder waiting for a CPU) left two 47 ms gaps in the stream. The
+#: price: a brake or a new plan reaches the wire one period later (20 ms at 50 Hz, 4 cm
+#: at 2 m/s); :meth:`SetpointStream.stop` still drops what waits at once.
+LEAD_PERIODS = 2
 
 Source = Plan | Hold | Brake
 
@@ -162,8 +170,12 @@ class SetpointStream:
         self.dropped = 0  # setpoints the sender did not send (late after a stall)
         self._unsent: dict[str, tuple[int, float]] = {}  # why: (not logged, last logged)
         self.sent = SentLog()  # (time, position) of the setpoints sent
-        self.last_sent: Command | None = None
-        self.last_send_time = 0.0
+        self.last_sent: Command | None = None  # the last handed to the sender ...
+        self.last_send_time = 0.0  # ... for this deadline
+        #: handed over, not yet reported on: (deadline, setpoint), oldest first
+        self._handed: deque[tuple[float, Command]] = deque(maxlen=4 * LEAD_PERIODS + 64)
+        #: the last the sender reported out: (deadline, setpoint)
+        self.last_out: tuple[float, Command] | None = None
         self.last_tick = 0.0  # monotonic time of the last loop iteration (supervision)
         self.stalls = 0
         self.reactions = Reactions()  # from a trajectory's arrival to its first setpoint
@@ -196,7 +208,8 @@ class SetpointStream:
             self.source, self.next_plan = Hold(position.copy(), reason), None
             self.yaw_ned = self.yaw_target = yaw_ned
             self.heading = Heading(yaw_ned)
-            self.halted, self.last_sent = None, None
+            self.halted, self.last_sent, self.last_out = None, None, None
+            self._handed.clear()
             self.streaming, self.started = True, time.monotonic()
 
     def stop(self) -> None:
@@ -336,18 +349,19 @@ class SetpointStream:
 
     def _loop(self, stop: threading.Event, beat: Callable[[], None]) -> None:
         """Setpoints at ``rate_hz`` on absolute deadlines (no drift), while streaming;
-        ``beat()`` after every tick. Each setpoint is computed one period before its
-        deadline and handed to the sender process, which sends it at the deadline
-        (:mod:`companion.flight.sender`): a tick of this thread may come up to a period late
-        (waiting for the GIL or a CPU) and the setpoint still goes out on time."""
+        ``beat()`` after every tick. Each setpoint is computed :data:`LEAD_PERIODS`
+        periods before its deadline and handed to the sender process, which sends it at
+        the deadline (:mod:`companion.flight.sender`): a tick of this thread may come up to
+        that late (waiting for the GIL or a CPU) and the setpoint still goes out on time."""
         period = 1.0 / self._cfg().stream.rate_hz
-        deadline = time.monotonic()
+        lead = LEAD_PERIODS * period
+        deadline = time.monotonic() + lead - period
         self.last_tick = time.monotonic()
         self.clock.tick()
         ticks = 0
         while not stop.is_set():
             deadline += period
-            delay = deadline - period - time.monotonic()
+            delay = deadline - lead - time.monotonic()
             if delay < -5 * period:  # fell far behind (stalled): resynchronise
                 deadline = time.monotonic() + period
             if delay > 0:
@@ -378,6 +392,12 @@ class SetpointStream:
         sent are logged, at most once a second for each reason, with their count)."""
         now = time.monotonic()
         for sent in self.autopilot.sent():
+            while self._handed and self._handed[0][0] < sent.at:
+                self._handed.popleft()  # (handed before a begin: no report to wait for)
+            if self._handed and self._handed[0][0] == sent.at:
+                handed = self._handed.popleft()
+                if sent.sent_at is not None:
+                    self.last_out = handed
             if sent.sent_at is not None:
                 self.send_times.append(sent.sent_at)
                 continue
@@ -408,6 +428,14 @@ class SetpointStream:
         ago, else ends the stream."""
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, stall)
+        if self.last_out is not None and self.last_out[0] < self.last_send_time:
+            # What waited in the sender was computed before the stall, more than the
+            # budget ago: past its ``not_after``, it never goes out (:meth:`_step`), and
+            # the brake starts from the last setpoint that did, not from one the vehicle
+            # never received. (The sender writes its report just after a send: one sent
+            # within microseconds of this tick may be missed, and the brake then starts
+            # a period back along the path, a step the spacing allows.)
+            self.last_send_time, self.last_sent = self.last_out
         what = f"the service was stalled for {stall:.2f} s" + (f" ({why})" if why else "")
         gap = now - self.last_send_time if self.last_sent is not None else stall
         if gap >= self.resume_limit():
@@ -474,12 +502,13 @@ class SetpointStream:
             # sees the stall), nor later than PX4 is sure to be waiting for it
             sent = self.autopilot.send(cmd.position, cmd.velocity, cmd.acceleration,
                                        self.yaw_ned, now, not_after, silence,
-                                       1.0 / self._cfg().stream.rate_hz)
+                                       LEAD_PERIODS / self._cfg().stream.rate_hz)
         except Exception as exc:  # noqa: BLE001 - the link monitor reports a dead link
             log.warning("setpoint send failed: %s", exc)
             return
         if sent:
             self.sent.append(now, cmd.position)
+            self._handed.append((now, cmd))
             self.last_sent, self.last_send_time = cmd, now
             self.record("setpoint", {"t": now, "p": cmd.position, "v": cmd.velocity,
                                      "a": cmd.acceleration, "yaw": self.yaw_ned,

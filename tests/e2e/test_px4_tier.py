@@ -109,6 +109,13 @@ def assert_stream_ok(f: TierFlight, t0: float, t1: float = float("inf")) -> None
     figures = f.stream(t0, t1)
     if figures is not None:
         print(f"{f.backend}: vehicle side: {figures.summary()}")
+        if figures.problems():
+            sp = f.wire(t0, t1)
+            late = np.flatnonzero(np.diff(sp["sent_s"]) > 0.025)
+            print(f"{f.backend}: gaps over 25 ms (s after t0: gap ms): "
+                  + ", ".join(f"{sp['wall_time'][i] - t0:.3f}: "
+                              f"{(sp['sent_s'][i + 1] - sp['sent_s'][i]) * 1e3:.0f}"
+                              for i in late))
         assert not figures.problems(), figures.summary()
 
 
@@ -178,6 +185,8 @@ def test_a_short_stall_holds_in_offboard(flight):
     if wire is not None:  # the first setpoint after the freeze goes on from the last before
         before = np.flatnonzero(wire["wall_time"] < r.t0)[-1]
         step = float(np.linalg.norm(wire["position"][before + 1] - wire["position"][before]))
+        print(f"{flight.backend}: the first setpoint after the freeze {step:.3f} m from the "
+              "last before")
         assert step <= allowed_speed(flight.cfg) * 0.02 + 0.01, step
     assert_stream_ok(flight, r.t_fly)
 
