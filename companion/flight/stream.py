@@ -90,8 +90,8 @@ CLOCK_EVERY = 10
 #: Each setpoint is computed this many periods before its deadline and handed to the
 #: sender process, which sends it at the deadline: a tick of the stream's thread may
 #: come this many periods late, less a little, and the vehicle sees nothing. One period
-#: was not enough in CI (two test workers on two cores beside real PX4): a tick held
-#: up 27 ms (the GIL's holder waiting for a CPU) left two 47 ms gaps in the stream. The
+#: was not enough in CI (two test workers on two cores beside real PX4): the vehicle saw
+#: two 47 ms gaps, as a tick held up some 27 ms (the GIL's holder waiting for a CPU) leaves. The
 #: price: a brake or a new plan reaches the wire one period later (20 ms at 50 Hz, 4 cm
 #: at 2 m/s); :meth:`SetpointStream.stop` still drops what waits at once.
 LEAD_PERIODS = 2
