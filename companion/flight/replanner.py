@@ -154,6 +154,7 @@ class Replanner:
             solver_max_iter=cfg.limits.solver_max_iter,
             ros2=cfg.ros2 if cfg.ros2.enabled and cfg.ros2.retimed_topic else None,
             view=cfg.record.enabled and cfg.record.foxglove,
+            yaw_rate_max=cfg.yaw_slowdown_rad_s(), heading=incoming.heading,
             take_position=None if take is None else take.position,
             take_velocity=None if take is None else take.velocity,
             take_acceleration=None if take is None else take.acceleration)

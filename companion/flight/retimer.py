@@ -21,11 +21,12 @@ from companion.worker import Worker
 from rota import warm_up
 from rota.braking import BrakingParams
 from rota.chance import ChanceParams, UncertaintyModel
-from rota.problem import Limits, RetimeInput, SolverSettings
+from rota.heading import heading_speed_limits
+from rota.problem import Limits, RetimeInput, SolverSettings, make_grid
 from rota.result import RetimeResult
 from rota.retime import retime
 from rota.robust import Safety
-from rota.schema import TrajectoryMessage, result_to_dict
+from rota.schema import Heading, TrajectoryMessage, result_to_dict
 from rota.trajectory import Trajectory
 from rota.voxelmap import VoxelMap
 
@@ -50,6 +51,8 @@ class ReplanJob:
     solver_max_iter: int = 200
     ros2: Ros2Settings | None = None  # also build the ROS 2 message of the result
     view: bool = False  # also make the plan's Foxglove view (companion.recording.foxglove.PlanView)
+    yaw_rate_max: float = 0.0  # rad/s: slow where the heading could not keep up; 0: never
+    heading: Heading | None = None  # the planner's heading (ENU degrees), if it sent one
 
 
 @dataclass(frozen=True)
@@ -98,9 +101,13 @@ def _replan(job: ReplanJob) -> ReplanOutcome:
     # along the path), so the acceleration does not step at the takeover.
     a0 = (job.take_acceleration if job.limits.j_max is not None
           and job.take_position is not None else None)
+    # the heading keeps up: the path's direction, or the planner's heading (rota.heading)
+    yaw_limits = (heading_speed_limits(traj, make_grid(traj, min(job.dtau, traj.duration)),
+                                       job.yaw_rate_max, job.heading)
+                  if job.yaw_rate_max > 0 else None)
     result = retime(RetimeInput(trajectory=traj, limits=job.limits, smoothness=job.smoothness,
                                 dtau=job.dtau, start_velocity=v0, start_acceleration=a0,
-                                safety=safety,
+                                safety=safety, speed_limits=yaw_limits,
                                 solver=SolverSettings(max_iter=job.solver_max_iter)))
     seconds = time.perf_counter() - start
     msg = TrajectoryMessage(traj, id=job.id, frame="ENU", stamp=job.stamp)

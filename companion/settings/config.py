@@ -76,6 +76,7 @@ class StreamSection:
     yaw: str = "path"  # "path": face along the path; "hold": keep the yaw at start
     yaw_rate_max_deg_s: float = 45.0  # the streamed yaw turns no faster (PX4 MPC_YAWRAUTO_MAX)
     yaw_accel_max_deg_s2: float = 90.0  # nor changes its rate faster (companion/flight/heading.py)
+    slow_for_yaw: bool = False  # re-time so the heading keeps up with the path (rota/heading.py)
     takeoff_altitude_m: float = 1.5
     auto_start: bool = False  # arm, take off and start offboard on the first trajectory
     stall_budget_s: float = 0.25  # a longer stall of the loop brakes (docs/service.md)
@@ -160,6 +161,14 @@ class Config:
     # ----------------------------------------------------------- derived objects
     def rota_limits(self) -> Limits:
         return Limits(self.limits.v_max, self.limits.a_max, self.limits.j_max or None)
+
+    def yaw_slowdown_rad_s(self) -> float:
+        """The yaw rate (rad/s) the re-time slows the path for (``[stream] slow_for_yaw``,
+        only while the heading follows the path or the planner: ``yaw = "path"``); 0: it
+        does not."""
+        s = self.stream
+        return math.radians(s.yaw_rate_max_deg_s) if s.slow_for_yaw and s.yaw == "path" \
+            else 0.0
 
     def uncertainty_model(self) -> UncertaintyModel:
         u = self.uncertainty

@@ -63,6 +63,8 @@ RULES: dict[tuple[str, str], Rule] = {
                                            "slowly (it stays continuous either way)"),
     ("stream", "yaw_accel_max_deg_s2"): Rule("max", "a lower limit only changes the heading's "
                                              "turn rate more gently"),
+    ("stream", "slow_for_yaw"): Rule("on", "slowing where the heading could not keep up only "
+                                     "lowers speed limits"),
     ("safety", "geofence_min"): Rule("min", "the geofence may only shrink"),
     ("safety", "geofence_max"): Rule("max", "the geofence may only shrink"),
     ("safety", "max_message_age_s"): Rule("max", "a lower age refuses more stale trajectories "

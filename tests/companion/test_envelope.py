@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import time
 from dataclasses import replace
 
@@ -289,6 +290,17 @@ def test_the_heading_limits_only_tighten_at_run_time():
                        "limit only turns the heading more slowly"):
         rc.apply({"set": {"stream": {"yaw_rate_max_deg_s": 90.0}}}, "p")
     assert state["cfg"].stream.yaw_rate_max_deg_s == 30.0
+    # slowing for the heading may be switched on while running, and off only where the
+    # config file leaves it off
+    rc.apply({"set": {"stream": {"slow_for_yaw": True}}}, "p")
+    assert state["cfg"].yaw_slowdown_rad_s() == pytest.approx(math.radians(30.0))
+    on = replace(FILE, stream=replace(FILE.stream, slow_for_yaw=True))
+    state = {"cfg": on}
+    rc = Reconfigure(on, lambda: state["cfg"], lambda c: state.update(cfg=c), Reporter())
+    with pytest.raises(ConfigError, match=r"\[stream\] slow_for_yaw: (F|f)alse refused; "
+                       r"allowed: true \(the config file sets it\)"):
+        rc.apply({"set": {"stream": {"slow_for_yaw": False}}}, "p")
+    assert state["cfg"].stream.slow_for_yaw
 
 
 def test_a_long_section_name_is_capped_in_the_answer():

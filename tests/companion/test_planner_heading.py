@@ -122,3 +122,35 @@ def test_the_stream_turns_to_the_planners_heading_within_the_limits(mode):
     steps = np.abs([wrap_deg(b - a) for a, b in zip(sent[:-1], sent[1:], strict=True)])
     assert steps.max() <= cfg.stream.yaw_rate_max_deg_s / cfg.stream.rate_hz + 1e-9
     assert sent[-1] == pytest.approx(0.0 if mode == "path" else 90.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("yaw", ["path", "hold"])
+def test_the_service_slows_where_the_heading_could_not_keep_up(yaw):
+    """``[stream] slow_for_yaw``: the worker's re-time of a replan taken over on a path
+    with a tight corner (joined onto the command: the stitched path) turns the direction
+    of flight within the yaw-rate limit; with ``yaw = "hold"`` the heading does not turn
+    with the path and nothing is slowed."""
+    from companion.flight.retimer import ReplanJob, _replan
+    from tests.rota.test_heading import corner, path_yaw_rate
+
+    cfg = from_dict({"stream": {"slow_for_yaw": True, "yaw": yaw,
+                                "yaw_rate_max_deg_s": 40.0}})
+    traj = corner(1.0)
+    take = retime(RetimeInput(trajectory=traj, limits=cfg.rota_limits())).sample(1.0)
+
+    def replan(rate: float):
+        out = _replan(ReplanJob(
+            id="c", stamp=None, trajectory=traj, limits=cfg.rota_limits(), smoothness=0.5,
+            dtau=cfg.limits.dtau, uncertainty=cfg.uncertainty_model(),
+            chance=cfg.chance_params(), braking=cfg.braking_params(),
+            take_position=take.position[0] + 0.05, take_velocity=take.velocity[0],
+            yaw_rate_max=rate))
+        assert out.result.ok, out.result.message
+        return out.result
+
+    free, slowed = replan(0.0), replan(cfg.yaw_slowdown_rad_s())
+    if yaw == "hold":
+        assert cfg.yaw_slowdown_rad_s() == 0.0 and slowed.duration == free.duration
+        return
+    assert path_yaw_rate(free) > math.radians(60.0)
+    assert path_yaw_rate(slowed) <= math.radians(40.0) * 1.01  # measured: 40.01 deg/s
