@@ -309,21 +309,22 @@ def closest_approach(world: World, report: SimReport) -> float:
 
 def run_demo(out_dir: str = "out/demo", seed: int = 3, speed: float = 2.0,
              replans: int = 1, px4_build: str | None = None, hold_s: float = 0.0,
-             ) -> dict[str, Any]:
+             vehicle_seed: int | None = None) -> dict[str, Any]:
     """Run the demo flight; print and return a summary; write the flight record,
     its plot and a JSON summary. With ``px4_build`` the vehicle is real PX4 SITL
     (the SIH quadrotor of that build) instead of the ``sitl`` vehicle. ``hold_s``:
     how long it holds at the goal before it lands (the record then shows how it
-    settles there: ``rota-sitl parity``)."""
+    settles there: ``rota-sitl parity``). ``vehicle_seed``: the `sitl` vehicle's noise
+    (estimation error, wander), if not ``seed``'s."""
     _PROGRESS["t0"] = time.monotonic()
     try:
-        return _demo(out_dir, seed, speed, replans, px4_build, hold_s)
+        return _demo(out_dir, seed, speed, replans, px4_build, hold_s, vehicle_seed)
     finally:
         _PROGRESS["t0"] = None
 
 
 def _demo(out_dir: str, seed: int, speed: float, replans: int,
-          px4_build: str | None, hold_s: float) -> dict[str, Any]:
+          px4_build: str | None, hold_s: float, vehicle_seed: int | None) -> dict[str, Any]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     world = get_world("forest", seed=seed)
@@ -332,7 +333,7 @@ def _demo(out_dir: str, seed: int, speed: float, replans: int,
     # The service's persisted state (the in-flight estimate) lives under the output folder
     # and is kept: a second and third demo in a row fly with what the first one learned.
     state = str(out / "state")
-    with _vehicle(px4_build, world, seed) as vehicle:
+    with _vehicle(px4_build, world, seed, vehicle_seed) as vehicle:
         mav_port, home, sim = vehicle
         cfg = demo_config(mav_port, zenoh_port, speed, state, record={"dir": str(out / "records")})
         print(f"demo: forest world seed {seed} ({len(world.obstacles)} trees), speed limit "
@@ -409,12 +410,13 @@ def braking_model(status: dict[str, Any], cfg: Config) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def _vehicle(px4_build: str | None, world: World, seed: int):  # noqa: ANN202
+def _vehicle(px4_build: str | None, world: World, seed: int,  # noqa: ANN202
+             vehicle_seed: int | None = None):
     """(MAVLink port, home in world ENU, the SimProcess or, for PX4, an observer of its
     GCS link that reads SIH's ground truth) of the demo's vehicle."""
     if px4_build is None:
         port = free_udp_port()
-        with SimProcess(port=port, world="forest", seed=seed) as sim:
+        with SimProcess(port=port, world="forest", seed=seed, noise_seed=vehicle_seed) as sim:
             yield port, sim.home_enu, sim
         return
     from sitl.observer import Observer

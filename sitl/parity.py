@@ -113,8 +113,10 @@ def fly(runs: int, px4_build: str | None, seed: int = 3, speed: float = 2.0,
         with tempfile.TemporaryDirectory(prefix="rota-parity-") as tmp:
             t0 = time.monotonic()
             try:
+                # each `sitl` run draws its own noise (estimation error, wander), as
+                # each PX4 run does: one draw for all runs hid the spread
                 summary = run_demo(out_dir=tmp, seed=seed, speed=speed, px4_build=px4_build,
-                                   hold_s=HOLD_S)
+                                   hold_s=HOLD_S, vehicle_seed=100 + k)
                 summary.update(tracking_figures(replay.load(summary.pop("record"))))
             except Exception as exc:  # noqa: BLE001 - counted and said, the next run goes on
                 out["failed"].append(f"run {k + 1}: {type(exc).__name__}: {exc}")
@@ -155,7 +157,8 @@ def fly_tier(runs: int, px4_build: str | None) -> dict[str, Any]:
     out: dict[str, Any] = {"backend": backend, "runs": [], "failed": []}
     for k in range(runs):
         try:
-            with TierFlight(backend, Path(px4_build) if px4_build else None) as f:
+            with TierFlight(backend, Path(px4_build) if px4_build else None,
+                            noise_seed=100 + k) as f:
                 out["runs"].append(asyncio.run(_tier_run(f)))
         except Exception as exc:  # noqa: BLE001 - counted and said, the next run goes on
             out["failed"].append(f"run {k + 1}: {type(exc).__name__}: {str(exc)[:300]}")

@@ -56,7 +56,7 @@ def _child(conn: Any, options: dict[str, Any]) -> None:  # pragma: no cover - ot
     params = VehicleParams(home_enu_m=home, **options.get("params", {}))
     est = (EstimationErrorParams(**options["estimation"]) if options.get("estimation")
            else None)  # None: the vehicle's default, PX4's EKF in SIH
-    sim = SimVehicle(params, estimation=est, world=world, seed=options["seed"],
+    sim = SimVehicle(params, estimation=est, world=world, seed=options["noise_seed"],
                      port=options["port"], record_history=True, history_decimation=5)
     sim.start()
     conn.send(("ready", sim.local_port, home, sim.gcs_port))
@@ -111,6 +111,8 @@ class SimProcess:
         world: a world name of :func:`sitl.world.get_world`, or None.
         world_dict: a world as :meth:`sitl.world.World.to_dict` (instead of a name).
         seed: world and noise seed.
+        noise_seed: the vehicle's noise (estimation error, wander) alone, if not ``seed``:
+            flights of one world that are to differ as PX4's runs do.
         port: the companion's UDP port (MAVSDK ``udpin://127.0.0.1:<port>``).
         params: overrides of :class:`sitl.vehicle.VehicleParams` fields.
         estimation: an estimation-error model as :class:`sitl.estimation.EstimationErrorParams`
@@ -121,8 +123,10 @@ class SimProcess:
     def __init__(self, *, port: int, world: str | None = None,
                  world_dict: dict[str, Any] | None = None, seed: int = 0,
                  params: dict[str, Any] | None = None,
-                 estimation: dict[str, Any] | None = None) -> None:
+                 estimation: dict[str, Any] | None = None,
+                 noise_seed: int | None = None) -> None:
         self.options = {"port": port, "world": world, "world_dict": world_dict, "seed": seed,
+                        "noise_seed": seed if noise_seed is None else noise_seed,
                         "params": params or {}, "estimation": estimation or {}}
         self.report: SimReport | None = None
         self.home_enu = np.zeros(3)

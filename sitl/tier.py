@@ -60,10 +60,11 @@ class TierFlight:
 
     def __init__(self, backend: str, build: Path | None = None, seed: int = TIER_SEED,
                  px4_params: dict[str, float] | None = None, defect: str | None = None,
-                 **overrides: dict[str, Any]) -> None:
+                 noise_seed: int | None = None, **overrides: dict[str, Any]) -> None:
         if backend not in BACKENDS:
             raise ValueError(f"backend {backend!r}: one of {BACKENDS}")
         self.backend, self.build, self.seed = backend, build, seed
+        self.noise_seed = noise_seed  # the `sitl` vehicle's noise, if not ``seed``'s
         self.defect = defect  # a deliberate defect built into the service (sitl.proving)
         self.px4_params = px4_params or {}
         # PX4's Return (its offboard-loss failsafe) climbs to 30 m before it flies home: a
@@ -93,7 +94,8 @@ class TierFlight:
             if self.backend == "sitl":
                 port = free_udp_port()
                 self.sim = self._stack.enter_context(SimProcess(port=port, world="forest",
-                                                                seed=self.seed))
+                                                                seed=self.seed,
+                                                                noise_seed=self.noise_seed))
                 self.home = self.sim.home_enu
                 self.observer = self._stack.enter_context(Observer(self.sim.gcs_port))
             else:
