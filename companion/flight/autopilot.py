@@ -25,6 +25,7 @@ import json
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -127,6 +128,8 @@ class Autopilot:
         self._sender: SetpointSender | None = None  # the setpoint sender process
         self._sender_link = None  # MAVSDK's handle of the link to it
         self._direct_sent: list[Sent] = []  # sent from here while the sender restarted
+        #: (at, not_after, max_shift, values) handed while the sender restarted, not yet due
+        self._direct_wait: deque[tuple[float, float, float, tuple[float, ...]]] = deque()
         self._tasks: list[asyncio.Task] = []
         self._boot = time.monotonic()
         #: PX4's COM_OF_LOSS_T, read at connection (None until read)
@@ -358,27 +361,49 @@ class Autopilot:
         the last setpoint that went out (moved on by up to ``max_shift`` if it goes out
         late: :func:`companion.flight.sender.shifted`): handed to the sender process (one
         pipe write, :mod:`companion.flight.sender`). While the sender is dead and being
-        restarted, sent at once from here through MAVSDK's MAVLink-direct plugin instead
-        (its position moved to now). True if handed over or sent."""
+        restarted, sent from here through MAVSDK's MAVLink-direct plugin instead
+        (:meth:`_send_direct`); what waits here when the new sender is up is handed to it
+        first, deadlines unchanged. True unless it was dropped at once (past
+        ``not_after``)."""
         if self._direct is None:
             raise AutopilotError("not connected")
         p, v, a = enu_to_ned(p_enu), enu_to_ned(v_enu), enu_to_ned(a_enu)
         values = (*map(float, p), *map(float, v), *map(float, a), math.radians(yaw_ned_deg))
         if self._sender is not None:
             try:
+                while self._direct_wait:
+                    first, until, shift, waiting = self._direct_wait[0]
+                    self._sender.put(first, until, max_silence, shift, waiting)
+                    self._direct_wait.popleft()
                 self._sender.put(at, not_after, max_silence, max_shift, values)
                 return True
             except SenderError:
                 pass  # reported and restarted by _watch_sender
-        return self._send_direct(values, at, not_after, max_shift)
+        self._direct_wait.append((at, not_after, max_shift, values))
+        self._send_direct()
+        return not any(s.at == at and s.sent_at is None for s in self._direct_sent)
 
-    def _send_direct(self, values: tuple[float, ...], at: float, not_after: float,
-                     max_shift: float) -> bool:
-        """The stand-in while the sender restarts: sends at once through MAVSDK's
-        MAVLink-direct plugin (not after ``not_after``), the position moved along its
-        velocity to now (the setpoint was computed for ``at``, up to the stream's lead ahead).
-        It never waits: the stream's thread calls it holding the stream's lock."""
+    def _send_direct(self) -> None:
+        """The stand-in while the sender restarts, called once a tick of the stream:
+        sends one setpoint at once through MAVSDK's MAVLink-direct plugin. The setpoint
+        whose deadline has come if there is one (the latest of them, moved on to now by
+        up to its ``max_shift``: a late tick); else, as a filler for the setpoints the dead
+        sender took with it, a copy of the next one moved back along its velocity to now
+        (by at most the stream's lead), which still goes out at its own deadline. Never
+        after a setpoint's ``not_after``. It never waits: the stream's thread calls it
+        holding the stream's lock."""
         now = time.monotonic()
+        wait = self._direct_wait
+        while wait and now > wait[0][1]:
+            self._direct_sent.append(Sent(wait.popleft()[0], None, "computed before a stall"))
+        if not wait:
+            return
+        due = None
+        while wait and wait[0][0] <= now:
+            if due is not None:
+                self._direct_sent.append(Sent(due[0], None, "superseded: a late tick"))
+            due = wait.popleft()
+        at, not_after, max_shift, values = due if due is not None else wait[0]
         values = shifted(values, max(-max_shift, min(now - at, max_shift)))
         keys = ("x", "y", "z", "vx", "vy", "vz", "afx", "afy", "afz", "yaw")
         fields = {"time_boot_ms": int(round((now - self._boot) * 1e3)) & 0xFFFFFFFF,
@@ -392,17 +417,19 @@ class Autopilot:
         plugin = self._direct._plugin
         handle, c_message = plugin._require_handle(), message.to_c_struct()
         if time.monotonic() > not_after:
-            self._direct_sent.append(Sent(at, None, "computed before a stall"))
-            return False
+            if due is not None:
+                self._direct_sent.append(Sent(at, None, "computed before a stall"))
+            return
         code = plugin._lib.mavsdk_mavlink_direct_send_message(handle, c_message)
         if code != _DIRECT_SUCCESS:
             raise AutopilotError(f"setpoint not sent: MAVSDK answered "
                                  f"{MavlinkDirectResult(code).name}")
-        self._direct_sent.append(Sent(at, now))
-        return True
+        if due is not None:  # (a filler is no report: its setpoint is still to go out)
+            self._direct_sent.append(Sent(at, now))
 
     def cancel_sends(self) -> None:
         """Drop the setpoints handed over and not yet sent (the stream stopped)."""
+        self._direct_wait.clear()
         if self._sender is not None:
             with contextlib.suppress(SenderError):
                 self._sender.cancel()

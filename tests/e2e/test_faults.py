@@ -44,13 +44,13 @@ def run(flight: Flight, scenario):
     return out, flight.sim.report
 
 
-def assert_stream_ok(flight: Flight, report, window=None) -> None:
+def assert_stream_ok(flight: Flight, report, window=None, max_gap_s: float = 0.1) -> None:
     figures = flight.figures(window, report.setpoints)
     print("vehicle side:", figures.summary())
     # the service's own account of its late ticks (the kernel's figures), to tell why
     late = [ln for ln in getattr(flight, "log", "").splitlines()
             if "setpoint stream late" in ln or "stalled for" in ln]
-    assert not figures.problems(), "\n".join([figures.summary(), *late[-10:]])
+    assert not figures.problems(max_gap_s), "\n".join([figures.summary(), *late[-10:]])
     assert not report.collisions
 
 
@@ -174,7 +174,11 @@ def test_a_killed_setpoint_sender_is_reported_and_restarted_without_a_gap():
     print(flight.log[-4000:])
     assert after["state"] == "offboard" and not after["halted"], after
     assert after["trajectory_id"] == "c0", after
-    assert_stream_ok(flight, report, (t0 - 1.0, t1))
+    # Handing over to the stand-in and back to the new sender leaves no hole: 6 runs, 3
+    # beside two busy loops, had a largest gap of 21-23 ms; when the stand-in sent each
+    # setpoint as soon as it was computed (the stream's lead early), the new sender's
+    # first one came 59-60 ms after its last. 45 ms: two periods and a margin.
+    assert_stream_ok(flight, report, (t0 - 1.0, t1), max_gap_s=0.045)
 
 
 def test_a_command_flood_leaves_the_mission_flying():
