@@ -213,6 +213,7 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                progress: Callable[[str], None]) -> list[dict[str, Any]]:
     """One PX4 instance flies ``trials``: the per-arm truth figures."""
     from companion.flight.autopilot import Autopilot
+    from sitl.host_steal import read_steal
     from sitl.observer import Observer
     from sitl.px4 import Px4Sitl
 
@@ -247,6 +248,7 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                     await stream.play(*min_jerk(stream.last, start, cfg.rate_hz))
                     await stream.hold(cfg.hold_s)
                     late = stream.late
+                    steal = read_steal()
                     t0, t1 = await stream.play(p - home, v, a)
                     await stream.hold(cfg.settle_s)
                     t_end = t1 + cfg.settle_s
@@ -255,7 +257,9 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                     truth = ned_to_enu(obs.truth(t0, t_end)) + home
                     estimate = ned_to_enu(obs.positions(t0, t_end)) + home
                     rec["arms"][arm] = figures(world, truth, estimate, p, mode=obs.mode()[0])
-                    rec["arms"][arm]["late_setpoints"] = stream.late - late
+                    rec["arms"][arm].update(late_setpoints=stream.late - late,
+                                            truth_hole=obs.truth_hole(t0, t_end),
+                                            host_steal_s=float(np.sum(read_steal() - steal)))
                 out.append(rec)
                 progress(f"trial {trial.index}: " + ", ".join(
                     f"{k} {r['closest_truth']:.2f} m" for k, r in rec["arms"].items()))

@@ -227,6 +227,13 @@ class Observer:
         with self.lock:
             return _between(self.seen.truth, t0, t1)
 
+    def truth_hole(self, t0: float, t1: float) -> float:
+        """The longest time (s) between ``t0`` and ``t1`` without a ground-truth sample
+        (the edges count: a truth stream that stopped shows as a hole to ``t1``)."""
+        with self.lock:
+            t = [s for s, _ in self.seen.truth if t0 <= s <= t1]
+        return float(np.max(np.diff([t0, *t, t1])))
+
     def texts(self, since: float = 0.0) -> list[str]:
         with self.lock:
             return [x for t, x in self.seen.texts if t >= since]
