@@ -1,7 +1,8 @@
 """rota-companion: the flight service's command line.
 
 Run the flight service (under systemd: Type=notify), check a configuration,
-or make a fleet's certificates and Zenoh configurations (fleet). The simulated
+compile the solver into its cache ahead of the first start (warm-up), or make a
+fleet's certificates and Zenoh configurations (fleet). The simulated
 demo and the proving flights are rota-sitl commands (sitl/flights_cli.py).
 
 Exit status: 0 success; 1 a failure at run time (Zenoh or MAVLink could not be
@@ -187,6 +188,21 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_warm_up(args: argparse.Namespace) -> int:
+    """Compile (or load) the solver's kernels into the cache the service will load them
+    from, so that no start waits for a compile (docs/deploy.md)."""
+    from rota import warm_up
+    from rota.jitcache import resolve_cache_dir
+
+    where = resolve_cache_dir(args.cache_dir)
+    if where is None or (args.cache_dir and where != Path(args.cache_dir)):
+        raise RunError(f"{args.cache_dir or 'no cache directory'}: cannot write there (the "
+                       "service's user must own it: docs/deploy.md)")
+    seconds = warm_up(where)
+    print(f"solver compiled or loaded in {seconds:.1f} s; cache {where}")
+    return 0
+
+
 def cmd_fleet(args: argparse.Namespace) -> int:
     from companion.network.fleet import Fleet, FleetError, FleetNameError, make_fleet
 
@@ -221,6 +237,12 @@ def make_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check-config", help="validate a configuration file")
     p.add_argument("config")
     p.set_defaults(func=cmd_check)
+    p = sub.add_parser("warm-up", help="compile the solver into its cache now (at install "
+                       "time), so that no start of the service waits for a compile")
+    p.add_argument("--cache-dir", default=None,
+                   help="the cache (default: as the service finds it: $ROTA_CACHE_DIR, "
+                   "systemd's $CACHE_DIRECTORY, ~/.cache/rota)")
+    p.set_defaults(func=cmd_warm_up)
     p = sub.add_parser("fleet", help="certificates and Zenoh configs of a fleet (mutual TLS, "
                        "access control)")
     p.add_argument("dir", help="where to make (or extend) the fleet")

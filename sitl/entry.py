@@ -6,7 +6,7 @@ from companion.entry import run
 
 #: rota-sitl's flight commands (sitl/flights_cli.py); the rest are experiments. (Here, not
 #: imported from there: nothing is imported before the shim's Ctrl-C guard.)
-FLIGHTS = ("demo", "bench-stream", "soak", "fuzz", "parity")
+FLIGHTS = ("demo", "bench-stream", "soak", "fuzz", "parity", "startup")
 
 
 def sim() -> int:

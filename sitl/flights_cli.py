@@ -3,7 +3,8 @@
 ``rota-sitl demo`` flies the flight service (in this process) through a forest on the
 simulated vehicle, or real PX4 SITL with ``--px4``; ``bench-stream`` measures the
 setpoint stream's jitter while re-times run back to back; ``soak`` flies N minutes with
-replans at 10 Hz (memory, errors, gaps, footprint); ``fuzz`` sends hostile and
+replans at 10 Hz (memory, errors, gaps, footprint); ``startup`` times the service's start
+to ``READY=1``; ``fuzz`` sends hostile and
 oversized messages on every input while flying; ``parity`` flies the demo N times on
 each backend and tabulates the spread. They live here, not in
 ``rota-companion``: the flight service never imports the simulator.
@@ -110,6 +111,17 @@ def cmd_parity(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_startup(args: argparse.Namespace) -> int:
+    from sitl.startup import run_startup
+
+    _positive(args, "runs")
+    setup_logging("WARNING")
+    figures = run_startup(args.runs, cold=not args.no_cold)
+    if args.out:
+        Path(args.out).write_text(json.dumps(figures, indent=1) + "\n")
+    return 0
+
+
 def add_flight_commands(sub: argparse._SubParsersAction) -> None:
     """The flight commands, on ``rota-sitl``'s sub-command parser."""
     p = sub.add_parser("demo", help="simulated flight through a forest (no PX4 needed)")
@@ -131,6 +143,13 @@ def add_flight_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--out", default=None, help="also write the figures as JSON here")
     p.set_defaults(func=cmd_soak)
+    p = sub.add_parser("startup", help="the service's start to READY=1, the solver's cache "
+                       "warm (after rota-companion warm-up) and empty")
+    p.add_argument("--runs", type=int, default=5, help="starts on the warm cache (default 5)")
+    p.add_argument("--no-cold", action="store_true", help="skip the start that compiles "
+                   "(about a minute)")
+    p.add_argument("--out", default=None, help="also write the figures as JSON here")
+    p.set_defaults(func=cmd_startup)
     p = sub.add_parser("fuzz", help="hostile messages on every input while flying")
     p.add_argument("--examples", type=int, default=2000,
                    help="generated messages (default 2000), plus four oversized ones")

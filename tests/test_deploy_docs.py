@@ -87,3 +87,22 @@ def test_service_extends_the_start_timeout_while_it_compiles(tmp_path):
     assert extend, got
     assert "STATUS=starting: compiling or loading the solver" in extend[0]
     assert int(re.search(r"EXTEND_TIMEOUT_USEC=(\d+)", extend[0]).group(1)) >= 10_000_000
+
+
+def test_warm_up_fills_the_cache_the_service_loads_and_refuses_one_it_cannot_write(tmp_path):
+    """The guide's install step: ``rota-companion warm-up`` puts the compiled kernels where
+    the service looks for them (here the suite's own cache, already warm: it loads), and
+    a cache directory it cannot write is refused in words, not silently replaced."""
+    from rota.jitcache import resolve_cache_dir
+
+    text = (ROOT / "docs/deploy.md").read_text()
+    assert "rota-companion warm-up --cache-dir /var/cache/rota-companion" in text
+    ok = subprocess.run([PY, "-m", "companion.cli", "warm-up"], capture_output=True,
+                        text=True, timeout=600)
+    assert ok.returncode == 0, ok.stderr
+    assert f"cache {resolve_cache_dir()}" in ok.stdout, ok.stdout
+    blocked = tmp_path / "file"
+    blocked.write_text("")  # a file: no directory can be made there
+    bad = subprocess.run([PY, "-m", "companion.cli", "warm-up", "--cache-dir",
+                          str(blocked / "cache")], capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 1 and "cannot write there" in bad.stderr, bad.stderr

@@ -82,3 +82,17 @@ def test_a_documented_command_parses(path, line, whole, capsys):
                    or re.search(r"invalid choice: '[A-Z]+'", last))
         if whole or not mention:
             pytest.fail(f"{path}: `{line}` does not parse (exit {exc.code}): {err}")
+
+
+def test_every_flight_command_is_routed_to_the_flights_cli():
+    """rota-sitl sends a command to sitl/flights_cli.py by its first word
+    (sitl.entry.FLIGHTS, a list of its own so the entry imports nothing): a flight command
+    missing from it reached the experiments' parser and failed there ('startup' did)."""
+    import argparse
+
+    from sitl.entry import FLIGHTS
+    from sitl.flights_cli import add_flight_commands
+
+    sub = argparse.ArgumentParser().add_subparsers()
+    add_flight_commands(sub)
+    assert set(sub.choices) == set(FLIGHTS)
