@@ -126,13 +126,16 @@ def check_environment(cfg: Config) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from companion.worker import start_fork_server
+
+    # records, logs and the estimator's state are the operator's alone (files 0600,
+    # folders 0700), under systemd (UMask=0027) or not; a stricter umask stays
+    os.umask(os.umask(0o077) | 0o077)
+    start_fork_server()  # (it imports the workers' code while this process imports its own)
     from companion.settings.config import load
 
     cfg = load(args.config)
     check_environment(cfg)
-    # records, logs and the estimator's state are the operator's alone (files 0600,
-    # folders 0700), under systemd (UMask=0027) or not; a stricter umask stays
-    os.umask(os.umask(0o077) | 0o077)
     if access_control(cfg):  # its denials are in Zenoh's own log only: into ours
         import zenoh
 

@@ -6,11 +6,20 @@ process (the work holds the GIL; a thread would stall the setpoint stream).
 call or a death of the process restarts it, and the caller learns which of the
 two happened. :meth:`Worker.dead` tells whether an idle process died, so the
 supervisor can report and respawn it within a second.
+
+Workers are forked from a fork server (:func:`start_fork_server`): a process of its
+own, started from a fresh interpreter before the service opens Zenoh or MAVSDK (so
+no thread of theirs is forked), that imports the workers' code once
+(:data:`PRELOAD`), at the same time as the service imports its own. A worker then
+starts with numpy, scipy and ``rota`` already loaded (a decode worker is ready in
+milliseconds, not the second of imports a fresh interpreter takes) and shares those
+pages with the other workers.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -18,6 +27,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import forkserver
 from typing import Any, TypeVar
 
 from companion import memory
@@ -43,9 +53,26 @@ def worker_nice(parent: int) -> int:
     return max(parent + WORKER_NICE_STEP, WORKER_NICE_FLOOR)
 
 
-def _init() -> None:
-    parent = os.getpriority(os.PRIO_PROCESS, 0)  # inherited
-    os.nice(worker_nice(parent) - parent)
+#: What every worker imports (numpy, scipy, ``rota``): by the fork server, before it forks
+#: the first worker. (Not the re-timer's own code: it draws plans with Foxglove's schemas,
+#: which a decode worker has no use for; it imports them in its own process, 0.2 s.)
+PRELOAD = ("companion.network.decoder", "companion.messages")
+
+
+def start_fork_server() -> None:
+    """Start the fork server the workers are forked from (if it does not run), importing
+    :data:`PRELOAD` while the service goes on with its own start: the service's ``run``
+    calls it first thing. Started from a fresh interpreter (not forked from the service);
+    restarted by the next worker's start if it died."""
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(PRELOAD))
+    forkserver.ensure_running()
+
+
+def _init(service_nice: int) -> None:
+    here = os.getpriority(os.PRIO_PROCESS, 0)  # the fork server's
+    with contextlib.suppress(OSError):  # (only a raise needs a privilege)
+        os.nice(worker_nice(service_nice) - here)
     # Ctrl-C in a terminal goes to the whole process group: the service decides
     # when its workers stop, a KeyboardInterrupt traceback in one helps nobody
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -62,6 +89,16 @@ def describe_exit(code: int | None) -> str:
         except ValueError:
             return f"killed by signal {-code}"
     return f"exit code {code}"
+
+
+#: The exit code Python gives a forked worker whose status its fork server can no longer
+#: tell (the server died: every pool then counts its workers dead)
+_SERVER_LOST = 255
+
+
+def _exit_of(code: int | None) -> str:
+    """A worker's exit code in words (:func:`describe_exit`)."""
+    return "lost with its fork server" if code == _SERVER_LOST else describe_exit(code)
 
 
 class Worker:
@@ -83,10 +120,12 @@ class Worker:
 
     def pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            # spawn, not fork: the parent runs Zenoh and MAVSDK threads
-            self._pool = ProcessPoolExecutor(max_workers=self.workers,
-                                             mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_init)
+            # forked from the fork server, not from here: this process runs Zenoh and
+            # MAVSDK threads
+            start_fork_server()
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.workers, mp_context=multiprocessing.get_context("forkserver"),
+                initializer=_init, initargs=(os.getpriority(os.PRIO_PROCESS, 0),))
             self._on_spawn(self._pool)
         return self._pool
 
@@ -114,9 +153,16 @@ class Worker:
             # called it then outlives the supervisor's close)
             async with asyncio.timeout(timeout_s):
                 # submitted from a thread: a submit to a fresh pool starts its process
-                # (fork, exec, hand-over: 1-10 ms measured beside two busy loops), which
-                # would hold up the setpoint stream at every respawn
-                submitted = await loop.run_in_executor(None, pool.submit, fn, *args)
+                # (the fork server's fork and hand-over; a fresh interpreter's took 1-10 ms
+                # beside two busy loops), which would hold up the setpoint stream at every
+                # respawn
+                try:
+                    submitted = await loop.run_in_executor(None, pool.submit, fn, *args)
+                except (OSError, EOFError) as exc:  # (the fork server died as it was asked)
+                    if self._pool is pool:
+                        self.restart()
+                    raise WorkerDied(f"{self.name} worker could not start ({exc!r}); "
+                                     "tried again at the next call") from None
                 procs = self._processes(pool)
                 return await asyncio.wrap_future(submitted)
         except TimeoutError:
@@ -127,7 +173,7 @@ class Worker:
         except BrokenProcessPool:
             procs = procs or self._processes(pool)
             for _ in range(10):  # the exit status shows a moment after the pipes close
-                cause = next((describe_exit(p.exitcode) for p in procs
+                cause = next((_exit_of(p.exitcode) for p in procs
                               if p.exitcode is not None), "died")
                 if cause != "died":
                     break
@@ -145,7 +191,7 @@ class Worker:
             return None
         for proc in self._processes(pool):
             if proc.exitcode is not None:
-                return describe_exit(proc.exitcode)
+                return _exit_of(proc.exitcode)
         return None  # (a broken pool whose process shows no exit status yet: next look)
 
     @property

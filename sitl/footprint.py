@@ -48,9 +48,20 @@ def _name(pid: int) -> str:
     for i, word in enumerate(words):  # python -m module ...: the module is the name
         if word == "-m" and i + 1 < len(words):
             return " ".join(words[i + 1:i + 3])
+        if "multiprocessing.forkserver" in word:  # the fork server and what it forked
+            return "worker (forked)" if "forkserver" in _parent_cmdline(pid) else "fork server"
         if "multiprocessing" in word or "spawn_main" in word:
             return "worker (spawned)"
     return " ".join(Path(w).name if j == 0 else w for j, w in enumerate(words[:2]))
+
+
+def _parent_cmdline(pid: int) -> str:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        ppid = stat[stat.rindex(")") + 2:].split()[1]
+        return Path(f"/proc/{ppid}/cmdline").read_bytes().decode(errors="replace")
+    except (OSError, IndexError, ValueError):
+        return ""
 
 
 def process(pid: int) -> Process | None:

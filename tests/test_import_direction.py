@@ -167,12 +167,17 @@ NOT_IN_A_DECODE_WORKER = ("filterpy", "scipy.stats", "mcap", "foxglove", "mavsdk
 
 
 def test_a_decode_worker_loads_what_it_decodes_with_and_no_more():
-    """Measured in a fresh interpreter: the modules a decode worker imports
-    (companion.network.decoder, and the messages it decodes into)."""
+    """Measured in a fresh interpreter: the modules a decode worker has, those the fork
+    server imports for every worker (companion.worker.PRELOAD) and the messages it decodes
+    into. (Neither MAVSDK nor Zenoh may be among them: their threads would be
+    forked with the server's state.)"""
     import subprocess
     import sys
 
-    code = ("import sys, companion.network.decoder, companion.messages\n"
+    from companion.worker import PRELOAD
+
+    assert "companion.network.decoder" in PRELOAD
+    code = (f"import sys, companion.messages, {', '.join(PRELOAD)}\n"
             f"bad = [m for m in {NOT_IN_A_DECODE_WORKER!r} if m in sys.modules]\n"
             "print(' '.join(bad))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
