@@ -4,9 +4,12 @@ for the flight tests."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rota import RetimeResult
+from rota.trajectory import BSplineTrajectory
 
 
 def fine_times(result: RetimeResult, refine: int = 10) -> np.ndarray:
@@ -39,3 +42,15 @@ def min_jerk(t: float, duration: float, dist: float) -> tuple[float, float, floa
     v = dist / duration * (30 * s**2 - 60 * s**3 + 30 * s**4)
     a = dist / duration**2 * (60 * s - 180 * s**2 + 120 * s**3)
     return p, v, a
+
+
+def corner(radius: float) -> BSplineTrajectory:
+    """4 m east, a quarter circle of ``radius`` to the north, 4 m north (z = 2 m), as
+    a cubic B-spline through dense control points (0.1 m apart)."""
+    east = np.stack([np.linspace(-4.0, 0.0, 41), np.zeros(41)], 1)
+    turn = np.linspace(0.0, math.pi / 2, max(8, int(radius * 16)))[1:]
+    arc = np.stack([radius * np.sin(turn), radius * (1 - np.cos(turn))], 1)
+    north = np.stack([np.full(40, radius), radius + np.linspace(0.1, 4.0, 40)], 1)
+    xy = np.concatenate([np.repeat(east[:1], 3, 0), east, arc, north,
+                         np.repeat(north[-1:], 3, 0)])
+    return BSplineTrajectory(np.column_stack([xy, np.full(len(xy), 2.0)]), 3, 0.1)

@@ -14,6 +14,7 @@ from rota.heading import FLOOR_M_S, heading_speed_limits
 from rota.problem import make_grid
 from rota.schema import Heading
 from rota.trajectory import BSplineTrajectory
+from tests.helpers.kinematics import corner
 
 OMEGA = math.radians(45.0)  # the flight service's default yaw-rate limit
 LIMITS = Limits(2.0, 2.0)
@@ -23,18 +24,6 @@ RATE = 200.0  # Hz, the finite differences
 #: flown peaks are 44.998-45.000 deg/s against 45: 1 % (the jerk bound's tolerance) is
 #: slack for the 5 ms finite differences alone.
 TOL = 0.01
-
-
-def corner(radius: float) -> BSplineTrajectory:
-    """4 m east, a quarter circle of ``radius`` to the north, 4 m north (z = 2 m), as
-    a cubic B-spline through dense control points (0.1 m apart)."""
-    east = np.stack([np.linspace(-4.0, 0.0, 41), np.zeros(41)], 1)
-    turn = np.linspace(0.0, math.pi / 2, max(8, int(radius * 16)))[1:]
-    arc = np.stack([radius * np.sin(turn), radius * (1 - np.cos(turn))], 1)
-    north = np.stack([np.full(40, radius), radius + np.linspace(0.1, 4.0, 40)], 1)
-    xy = np.concatenate([np.repeat(east[:1], 3, 0), east, arc, north,
-                         np.repeat(north[-1:], 3, 0)])
-    return BSplineTrajectory(np.column_stack([xy, np.full(len(xy), 2.0)]), 3, 0.1)
 
 
 def path_yaw_rate(result, floor: float = FLOOR_M_S) -> float:
