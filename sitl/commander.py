@@ -108,6 +108,11 @@ class Host(Protocol):
     def on_ground(self) -> bool: ...
 
     @property
+    def height_m(self) -> float:
+        """True height above the ground (SIH's distance sensor)."""
+        ...
+
+    @property
     def yaw(self) -> float: ...
 
     def reset_controller(self) -> None: ...
@@ -144,6 +149,9 @@ class Commander:
         self._armed_t = 0.0
         self._took_off = False
         self._ground_since: float | None = 0.0
+        self._detected = False  # "Landing detected" said since the touchdown
+        self._land_v = 0.0  # Land's descent speed now (m/s) and its rate (m/s^2)
+        self._land_acc = 0.0
         self._ref: AutoReference | None = None
         self._target = np.zeros(3)
         self._takeoff_t = 0.0
@@ -173,7 +181,7 @@ class Commander:
         if takeoff and (not on_ground
                         or self.host.time_s - self._takeoff_t >= TAKEOFF_STATE_DELAY_S):
             return _M.MAV_LANDED_STATE_TAKEOFF
-        if on_ground or not self.armed:
+        if self.landed() or not self.armed:
             return _M.MAV_LANDED_STATE_ON_GROUND if on_ground else _M.MAV_LANDED_STATE_IN_AIR
         if self.mode is Px4Mode.AUTO_LAND or self._rtl_phase == "land":
             return _M.MAV_LANDED_STATE_LANDING
@@ -266,7 +274,7 @@ class Commander:
     def _do_disarm(self, force: bool) -> int:
         if not self.armed:
             return _M.MAV_RESULT_ACCEPTED
-        if not self.host.on_ground and not force:
+        if not self.landed() and not force:
             self.event("Disarming denied: not landed", _M.MAV_SEVERITY_CRITICAL)
             return _M.MAV_RESULT_TEMPORARILY_REJECTED
         self._disarm("Disarmed by external command")
@@ -323,6 +331,7 @@ class Commander:
         if mode is Px4Mode.OFFBOARD:
             return
         est, vel = self.host.estimate()
+        self._land_v, self._land_acc = max(float(vel[2]), 0.0), 0.0  # Land starts from here
         if self._ref is None or previous is Px4Mode.OFFBOARD:
             self._ref = AutoReference(est, vel)
         if keep_target:
@@ -407,20 +416,33 @@ class Commander:
             self._target[2] = max(self._target[2], self.home[2] - lv["RTL_DESCEND_ALT"])
         elif self._rtl_phase == "descend" and near[2] < 0.3:
             self._rtl_phase = "land"
+            self._land_v, self._land_acc = max(float(vel[2]), 0.0), 0.0
+
+    def landed(self) -> bool:
+        """PX4's land detector: on the ground and, armed after a flight, for
+        ``land_detect_s`` since the touchdown."""
+        if not self.host.on_ground:
+            return False
+        if not (self.armed and self._took_off):
+            return True
+        since = self._ground_since  # (None: touched down in this step)
+        return since is not None and self.host.time_s - since >= self.params.land_detect_s
 
     def _ground_logic(self, t: float) -> None:
         """Landing detection and auto-disarm (COM_DISARM_LAND, COM_DISARM_PRFLT)."""
         if self.host.on_ground:
+            detect = self.params.land_detect_s if self._took_off else 0.0
             if self._ground_since is None:
                 self._ground_since = t
-                if self._took_off:
-                    self.event("Landing detected")
             on_ground_for = t - self._ground_since
+            if self._took_off and not self._detected and on_ground_for >= detect:
+                self._detected = True
+                self.event("Landing detected")
             land_t = self.live["COM_DISARM_LAND"]
             prflt_t = self.live["COM_DISARM_PRFLT"]
             landing = self.mode is Px4Mode.AUTO_LAND or self._rtl_phase == "land"
             if (self._took_off or landing) and land_t > 0.0:
-                if on_ground_for >= land_t:
+                if on_ground_for >= detect + land_t:
                     self._disarm("Disarmed by landing")
             elif not self._took_off and prflt_t > 0.0 and t - self._armed_t >= prflt_t:
                 if self.mode is not Px4Mode.AUTO_TAKEOFF:
@@ -428,6 +450,20 @@ class Commander:
         else:
             self._ground_since = None
             self._took_off = True
+            self._detected = False
+
+    def _land_speed(self, dt: float) -> float:
+        """Land's descent speed: MPC_LAND_SPEED, MPC_LAND_CRWL below MPC_LAND_ALT3 (by the
+        distance sensor), reached with the jerk MPC_JERK_AUTO (from rest at the command)."""
+        lv = self.live
+        crawl = self.host.height_m < lv["MPC_LAND_ALT3"]
+        target = lv["MPC_LAND_CRWL"] if crawl else lv["MPC_LAND_SPEED"]
+        err = target - self._land_v
+        jerk = max(lv["MPC_JERK_AUTO"], 1e-3)
+        # accelerate with growing rate; ease in where the rate left would overshoot
+        self._land_acc = min(self._land_acc + jerk * dt, math.sqrt(2.0 * jerk * abs(err)))
+        self._land_v += math.copysign(min(self._land_acc * dt, abs(err)), err)
+        return self._land_v
 
     def setpoint(self, dt: float) -> tuple[Setpoint | None, dict[str, Any]]:
         """Setpoint for the controller in the current mode (None: idle on the ground) and the
@@ -455,7 +491,7 @@ class Commander:
         if landing:
             ref = self._ref.step(dt, np.array([self._target[0], self._target[1], math.nan]),
                                  self._limits())
-            land_v = lv["MPC_LAND_SPEED"]
+            land_v = self._land_speed(dt)
             return Setpoint(np.array([ref.position[0], ref.position[1], math.nan]),
                             np.array([ref.velocity[0], ref.velocity[1], land_v]),
                             np.array([ref.acceleration[0], ref.acceleration[1], 0.0])), \

@@ -66,7 +66,16 @@ class VehicleParams:
             from below hover, which the spool-up time holds).
         takeoff_alt_radius_m: [NAV_MC_ALT_RAD] Takeoff ends (Hold) this far below the target;
             Hold then finishes the climb.
-        land_speed_m_s: [MPC_LAND_SPEED].
+        land_speed_m_s: [MPC_LAND_SPEED] descent speed of Land above ``land_crawl_alt_m``.
+        land_crawl_alt_m / land_crawl_m_s: [MPC_LAND_ALT3 / MPC_LAND_CRWL] below this height
+            above the ground (SIH's distance sensor: the true height) Land descends at the
+            crawl speed.
+        auto_jerk_m_s3: [MPC_JERK_AUTO] the descent speed of Land ramps up and down with
+            this jerk (PX4 recorded: 0.0-0.08 m lower 0.5 s after the command).
+        land_detect_s: from touchdown to PX4's land detector saying ON_GROUND (and "Landing
+            detected"; the COM_DISARM_LAND delay starts then): median of 9 PX4 SIH
+            landings, 1.6-10.6 s (docs/sitl.md, "Landing"). Disarmed, the vehicle is on the
+            ground as soon as it touches it.
         auto_cruise_m_s: [MPC_XY_CRUISE] horizontal speed in Hold and Return.
         auto_climb_m_s / auto_descend_m_s: [MPC_Z_V_AUTO_UP / _DN].
         brake_acc_m_s2: [MPC_ACC_HOR] horizontal acceleration of the automatic modes.
@@ -103,6 +112,10 @@ class VehicleParams:
     takeoff_ramp_s: float = 2.0
     takeoff_alt_radius_m: float = 0.8
     land_speed_m_s: float = 0.7
+    land_crawl_alt_m: float = 1.0
+    land_crawl_m_s: float = 0.3
+    auto_jerk_m_s3: float = 4.0
+    land_detect_s: float = 3.6
     auto_cruise_m_s: float = 5.0
     auto_climb_m_s: float = 3.0
     auto_descend_m_s: float = 1.5
@@ -132,6 +145,9 @@ PX4_PARAMS: dict[str, tuple[str, int]] = {
     "RTL_RETURN_ALT": ("rtl_return_alt_m", _M.MAV_PARAM_TYPE_REAL32),
     "RTL_DESCEND_ALT": ("rtl_descend_alt_m", _M.MAV_PARAM_TYPE_REAL32),
     "MPC_LAND_SPEED": ("land_speed_m_s", _M.MAV_PARAM_TYPE_REAL32),
+    "MPC_LAND_ALT3": ("land_crawl_alt_m", _M.MAV_PARAM_TYPE_REAL32),
+    "MPC_LAND_CRWL": ("land_crawl_m_s", _M.MAV_PARAM_TYPE_REAL32),
+    "MPC_JERK_AUTO": ("auto_jerk_m_s3", _M.MAV_PARAM_TYPE_REAL32),
     "MPC_XY_CRUISE": ("auto_cruise_m_s", _M.MAV_PARAM_TYPE_REAL32),
     "COM_DISARM_LAND": ("disarm_land_s", _M.MAV_PARAM_TYPE_REAL32),
     "COM_DISARM_PRFLT": ("disarm_preflight_s", _M.MAV_PARAM_TYPE_REAL32),

@@ -322,6 +322,10 @@ class SimVehicle:
         return self._model.state.on_ground
 
     @property
+    def height_m(self) -> float:
+        return self._model.params.ground_z_ned - float(self._model.state.position[2])
+
+    @property
     def yaw(self) -> float:
         return self._model.state.yaw
 
