@@ -133,6 +133,9 @@ def _parser() -> argparse.ArgumentParser:
     px4.add_argument("--clearance", type=float, default=p.clearance,
                      help="the planner's clearance beyond the robot's radius (m)")
     px4.add_argument("--speed", type=float, default=p.speed, help="v_max (m/s)")
+    px4.add_argument("--j-max", type=float, default=p.j_max,
+                     help="also fly ROTA jerk-limited to this (m/s^3 per axis; PX4's "
+                     "MPC_JERK_AUTO is 4) and measure every arm's RMS jerk (default 0: not)")
     px4.add_argument("--out", default="px4-out", help="output directory")
     return ap
 
@@ -179,7 +182,8 @@ def _run_px4(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     if not args.px4:
         raise ValueError(f"--px4: name a PX4 SITL build directory (or set {PX4_ENV})")
     cfg = Px4ExperimentConfig(trials=args.trials, seed=args.seed, workers=args.workers,
-                              clearance=args.clearance, speed=args.speed)
+                              clearance=args.clearance, speed=args.speed,
+                              j_max=args.j_max)
     result = run(cfg, args.px4, lambda s: print(s, file=sys.stderr, flush=True))
     paths = write(result, args.out, _command(argv))
     print(paths["md"].read_text())

@@ -13,6 +13,14 @@ planner (:func:`sitl.planner.plan`) at ``clearance`` beyond the robot's radius, 
   zones from the risk);
 * ``uniform``: the planner's path uniformly slowed to take exactly as long as ``rota``.
 
+With ``j_max`` set, a fourth arm flies too:
+
+* ``rota_jerk``: ROTA as ``rota``, with the jerk bound ``j_max`` per axis
+  (:func:`rota.jerk.retime_jerk`; PX4's own auto modes use ``MPC_JERK_AUTO`` = 4 m/s^3);
+
+and every arm's smoothness is measured as flown: the RMS jerk of SIH's true velocity (see
+:func:`rms_jerk`), beside the same measure of the commanded velocity.
+
 Each trial also records whether ROTA with the model fitted to PX4 (``FITTED``,
 docs/estimator.md) accepts the path; that model makes no flight of its own.
 
@@ -58,6 +66,12 @@ from sitl.world import DENSITIES, World, forest
 #: docs/estimator.md): m 0, b 0.53 m, floor 0.35 m.
 FITTED = UncertaintyModel(m=0.0, b=0.53, memory_s=0.0)
 ARMS = ("planned", "rota", "uniform")
+JERK_ARM = "rota_jerk"
+#: The jerk of a flight is measured on its velocity resampled at this rate (s^-1; SIH's
+#: truth arrives at about 25 Hz) and differentiated twice by a cubic Savitzky-Golay filter
+#: over this window (s): shorter windows measure the 1 cm/s steps of SIH's velocity, not
+#: the vehicle.
+JERK_RATE_HZ, JERK_WINDOW_S = 25.0, 0.6
 
 
 @dataclass(frozen=True)
@@ -75,6 +89,8 @@ class Px4ExperimentConfig:
         rate_hz: setpoint rate; settle_s: held at the end before the arm's window closes;
         hold_s: held at the start before an arm begins.
         workers: PX4 instances flying at once (each its own process).
+        j_max: the jerk bound of the extra arm ``rota_jerk`` (m/s^3 per axis; 0: no such
+            arm).
     """
 
     trials: int = 30
@@ -89,6 +105,7 @@ class Px4ExperimentConfig:
     settle_s: float = 1.0
     hold_s: float = 3.0
     workers: int = 1
+    j_max: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("trials", "workers"):
@@ -99,6 +116,13 @@ class Px4ExperimentConfig:
                 raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
         if self.clearance < 0:
             raise ValueError(f"clearance: must be >= 0 m, got {self.clearance}")
+        if not (self.j_max >= 0 and math.isfinite(self.j_max)):
+            raise ValueError(f"j_max: must be 0 (no jerk arm) or positive, got {self.j_max}")
+
+    @property
+    def arms(self) -> tuple[str, ...]:
+        """The arms flown: :data:`ARMS`, and :data:`JERK_ARM` with ``j_max``."""
+        return (*ARMS, JERK_ARM) if self.j_max > 0 else ARMS
 
 
 @dataclass(frozen=True)
@@ -133,8 +157,8 @@ def prepare(cfg: Px4ExperimentConfig, index: int) -> Trial:
     clearance = path_clearance(world, traj)
     vmap = VoxelMap.from_points(world.voxel_points(0.1), 0.1)
 
-    def rota_with(model: UncertaintyModel):  # noqa: ANN202
-        return retime(RetimeInput(traj, limits=Limits(cfg.speed, cfg.a_max),
+    def rota_with(model: UncertaintyModel, j_max: float | None = None):  # noqa: ANN202
+        return retime(RetimeInput(traj, limits=Limits(cfg.speed, cfg.a_max, j_max),
                                   safety=Safety(map=vmap, uncertainty=model)))
 
     res = rota_with(UncertaintyModel(memory_s=cfg.memory_s))
@@ -149,16 +173,21 @@ def prepare(cfg: Px4ExperimentConfig, index: int) -> Trial:
         "rota": table_rows(rota_sampler(res), res.duration, cfg.rate_hz),
         "uniform": table_rows(planned_sampler(traj, scale), res.duration, cfg.rate_hz),
     }
+    durations = {"planned": traj.duration, "rota": res.duration, "uniform": res.duration}
+    if cfg.j_max > 0:
+        jerk = rota_with(UncertaintyModel(memory_s=cfg.memory_s), cfg.j_max)
+        if jerk.ok:  # (a fallback's uniform slow-down would not be the arm's method)
+            tables[JERK_ARM] = table_rows(rota_sampler(jerk), jerk.duration, cfg.rate_hz)
+            durations[JERK_ARM] = jerk.duration
     return Trial(index, seed, res.status, fitted.status, clearance,
-                 float(np.mean(mask)) if mask is not None else 0.0,
-                 {"planned": traj.duration, "rota": res.duration, "uniform": res.duration},
-                 tables)
+                 float(np.mean(mask)) if mask is not None else 0.0, durations, tables)
 
 
 def arm_order(cfg: Px4ExperimentConfig, index: int) -> list[str]:
     """The order the arms of trial ``index`` fly in (drawn, reproducible)."""
     rng = np.random.default_rng([cfg.seed, 7, index])
-    return [ARMS[k] for k in rng.permutation(len(ARMS))]
+    arms = cfg.arms
+    return [arms[k] for k in rng.permutation(len(arms))]
 
 
 def min_jerk(p0: np.ndarray, p1: np.ndarray, rate_hz: float, peak_speed: float = 3.0,
@@ -243,6 +272,8 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                                 "error": f"PX4 in {obs.mode()[0]}, not OFFBOARD"})
                     continue
                 for arm in arm_order(cfg, trial.index):
+                    if arm not in trial.tables:  # (the jerk-limited re-time fell back)
+                        continue
                     p, v, a = trial.tables[arm]
                     start = p[0] - home
                     await stream.play(*min_jerk(stream.last, start, cfg.rate_hz))
@@ -257,6 +288,11 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                     truth = ned_to_enu(obs.truth(t0, t_end)) + home
                     estimate = ned_to_enu(obs.positions(t0, t_end)) + home
                     rec["arms"][arm] = figures(world, truth, estimate, p, mode=obs.mode()[0])
+                    t_v, v_true = obs.truth_velocities(t0, t_end)
+                    t_sp = t0 + np.arange(len(v)) / cfg.rate_hz
+                    rec["arms"][arm].update(
+                        rms_jerk_truth=rms_jerk(t_v, ned_to_enu(v_true)),
+                        rms_jerk_commanded=rms_jerk(t_sp, v))
                     rec["arms"][arm].update(late_setpoints=stream.late - late,
                                             truth_hole=obs.truth_hole(t0, t_end),
                                             host_steal_s=float(np.sum(read_steal() - steal)))
@@ -266,6 +302,23 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
         finally:
             await ap.close()
     return out
+
+
+def rms_jerk(t: np.ndarray, velocity: np.ndarray) -> float:
+    """RMS of the jerk's norm (m/s^3) of a velocity sampled at times ``t`` (s): resampled at
+    :data:`JERK_RATE_HZ`, its second derivative by a cubic Savitzky-Golay filter over
+    :data:`JERK_WINDOW_S` (the same for the flown and the commanded velocity)."""
+    from scipy.signal import savgol_filter
+
+    t = np.asarray(t, float)
+    dt = 1.0 / JERK_RATE_HZ
+    window = int(round(JERK_WINDOW_S / dt)) | 1
+    if len(t) < 2 or t[-1] - t[0] < window * dt:
+        return math.nan
+    grid = np.arange(t[0], t[-1], dt)
+    v = np.column_stack([np.interp(grid, t, velocity[:, k]) for k in range(3)])
+    jerk = savgol_filter(v, window, 3, deriv=2, delta=dt, axis=0)
+    return float(np.sqrt(np.mean(np.sum(jerk**2, axis=1))))
 
 
 def figures(world: World, truth: np.ndarray, estimate: np.ndarray, setpoints: np.ndarray,

@@ -5,6 +5,11 @@ radius of a trunk) with the 95 % Wilson interval, the closest approach (truth, r
 subtracted) and the commanded duration. Paired, ROTA against each control: the exact McNemar
 test on collisions (:func:`sitl.experiment_stats.mcnemar`) and the closest approach's paired
 difference (mean with its 95 % t interval, and the two-sided Wilcoxon signed-rank test).
+
+With the jerk-limited arm (``j_max``): over the trials both ROTA arms flew, the RMS jerk of
+each arm as flown (SIH's truth) and as commanded, and, paired, the jerk-limited arm's RMS jerk
+and duration as ratios to ROTA's (geometric means with 95 % t intervals on the log ratios,
+Wilcoxon signed-rank p).
 """
 
 from __future__ import annotations
@@ -17,11 +22,11 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from sitl.experiment_px4 import ARMS
+from sitl.experiment_px4 import ARMS, JERK_ARM
 from sitl.experiment_stats import mcnemar, wilson
 
 LABELS = {"planned": "planner's timing", "rota": "ROTA (shipped model)",
-          "uniform": "uniform slow-down, = ROTA time"}
+          "uniform": "uniform slow-down, = ROTA time", JERK_ARM: "ROTA, jerk-limited"}
 
 
 def paired_difference(x: np.ndarray, y: np.ndarray) -> dict[str, float]:
@@ -69,7 +74,57 @@ def summarise(run: dict[str, Any]) -> dict[str, Any]:
         b, c, p = mcnemar(col["rota"], col[other])
         out["pairs"][other] = {"only_rota": b, "only_other": c, "p": p,
                                "closest": paired_difference(close["rota"], close[other])}
+    out["jerk"] = jerk_summary(trials)
     return out
+
+
+def ratio(x: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """The paired ratio ``x / y``: geometric mean with its 95 % t interval, Wilcoxon p."""
+    d = paired_difference(np.log(x), np.log(y))
+    return {"ratio": math.exp(d["mean"]), "lo": math.exp(d["lo"]) if d["n"] > 1 else math.nan,
+            "hi": math.exp(d["hi"]) if d["n"] > 1 else math.nan, "p": d["p"], "n": d["n"]}
+
+
+def jerk_summary(trials: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The jerk-limited arm against ROTA's, over the trials both flew (None: no such arm)."""
+    both = [t for t in trials if {"rota", JERK_ARM} <= set(t["arms"])
+            and all(math.isfinite(t["arms"][a]["rms_jerk_truth"]) for a in ("rota", JERK_ARM))]
+    if not both:
+        return None
+
+    def col(arm: str, key: str) -> np.ndarray:
+        return np.array([t["arms"][arm][key] if key in t["arms"][arm] else t["durations"][arm]
+                         for t in both], float)
+
+    arms = {a: {"rms_jerk_truth": float(np.mean(col(a, "rms_jerk_truth"))),
+                "rms_jerk_commanded": float(np.mean(col(a, "rms_jerk_commanded"))),
+                "duration": float(np.mean(col(a, "duration")))} for a in ("rota", JERK_ARM)}
+    return {"n": len(both), "arms": arms,
+            "jerk_truth": ratio(col(JERK_ARM, "rms_jerk_truth"), col("rota", "rms_jerk_truth")),
+            "jerk_commanded": ratio(col(JERK_ARM, "rms_jerk_commanded"),
+                                    col("rota", "rms_jerk_commanded")),
+            "duration": ratio(col(JERK_ARM, "duration"), col("rota", "duration"))}
+
+
+def jerk_markdown(j: dict[str, Any], j_max: float) -> list[str]:
+    """The jerk-limited arm's table (:func:`jerk_summary`)."""
+    lines = ["", f"Jerk-limited ROTA (j_max {j_max:g} m/s^3 per axis) against ROTA, the "
+             f"{j['n']} trials both flew; RMS jerk of the velocity (Savitzky-Golay, "
+             "sitl.experiment_px4.rms_jerk), as flown (SIH's truth) and as commanded:", "",
+             "| arm | RMS jerk flown (m/s^3) | RMS jerk commanded (m/s^3) | duration (s) |",
+             "|---|---|---|---|"]
+    for a, r in j["arms"].items():
+        lines.append(f"| {LABELS[a]} | {r['rms_jerk_truth']:.2f} | "
+                     f"{r['rms_jerk_commanded']:.2f} | {r['duration']:.2f} |")
+    lines += ["", "| jerk-limited / ROTA, paired | ratio (95 % CI) | Wilcoxon p |",
+              "|---|---|---|"]
+    for key, what in (("jerk_truth", "RMS jerk flown"), ("jerk_commanded",
+                                                          "RMS jerk commanded"),
+                      ("duration", "flight time")):
+        r = j[key]
+        lines.append(f"| {what} | {r['ratio']:.3f} ({r['lo']:.3f} to {r['hi']:.3f}) | "
+                     f"{r['p']:.3g} |")
+    return lines
 
 
 def _ci(lo_hi: tuple[float, float]) -> str:
@@ -111,6 +166,8 @@ def markdown(run: dict[str, Any], s: dict[str, Any], command: str) -> str:
     lines += ["", f"ROTA with the model fitted to PX4 (m {fitted['m']:g}, b {fitted['b']:g} m) "
               f"rejected {s['fitted_rejected']} of {s['trials'] - s['no_plan']} planned paths "
               "(no speed meets Delta there; docs/estimator.md)."]
+    if s.get("jerk"):
+        lines += jerk_markdown(s["jerk"], cfg.get("j_max", 0.0))
     if s["errors"]:
         lines += ["", "Faults: " + "; ".join(s["errors"])]
     return "\n".join(lines) + "\n"

@@ -107,7 +107,9 @@ def cmd_parity(args: argparse.Namespace) -> int:
     setup_logging("WARNING")
     if args.tier_runs < 0:
         raise UsageError(f"--tier-runs: must be 0 or more, got {args.tier_runs}")
-    print(run_parity(args.runs, args.px4, args.out, args.tier_runs))
+    if args.px4_from and not Path(args.px4_from).is_file():
+        raise UsageError(f"--px4-from: no such file: {args.px4_from}")
+    print(run_parity(args.runs, args.px4, args.out, args.tier_runs, args.px4_from))
     return 0
 
 
@@ -161,6 +163,8 @@ def add_flight_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tier-runs", type=int, default=0, help="also fly the PX4 tier's "
                    "scenarios this many times per backend (default 0; about 3 min each)")
     p.add_argument("--px4", metavar="BUILD_DIR", help="also fly real PX4 SITL of this build")
+    p.add_argument("--px4-from", metavar="JSON", help="take PX4's flights from this earlier "
+                   "parity JSON instead of flying PX4 (after a change of the sitl vehicle)")
     p.add_argument("--out", default=None, help="write the Markdown table here (and JSON beside)")
     p.set_defaults(func=cmd_parity)
 

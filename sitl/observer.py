@@ -53,6 +53,7 @@ class Observed:
     modes: list[tuple[float, str, bool]] = field(default_factory=list)  # changes only
     position: list[tuple[float, np.ndarray]] = field(default_factory=list)  # estimate, NED
     truth: list[tuple[float, np.ndarray]] = field(default_factory=list)  # ground truth, NED
+    truth_velocity: list[tuple[float, np.ndarray]] = field(default_factory=list)  # NED, m/s
     landed: list[tuple[float, int]] = field(default_factory=list)  # changes only
     texts: list[tuple[float, str]] = field(default_factory=list)
     params: dict[str, float] = field(default_factory=dict)
@@ -175,6 +176,8 @@ class Observer:
                 s.position.append((now, np.array([msg.x, msg.y, msg.z])))  # type: ignore[attr-defined]
             elif kind == "HIL_STATE_QUATERNION":
                 s.truth.append((now, self._ned(msg)))
+                s.truth_velocity.append((now, np.array(  # cm/s, NED
+                    [msg.vx, msg.vy, msg.vz], dtype=float) / 100.0))  # type: ignore[attr-defined]
             elif kind == "EXTENDED_SYS_STATE":
                 landed = int(msg.landed_state)  # type: ignore[attr-defined]
                 if not s.landed or s.landed[-1][1] != landed:
@@ -226,6 +229,15 @@ class Observer:
         """Ground-truth positions, local NED, between ``t0`` and ``t1``."""
         with self.lock:
             return _between(self.seen.truth, t0, t1)
+
+    def truth_velocities(self, t0: float = 0.0, t1: float = math.inf
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Ground-truth velocities (NED, m/s; SIH sends them to 1 cm/s) between ``t0`` and
+        ``t1``, with the times they arrived (monotonic)."""
+        with self.lock:
+            keep = [(t, v) for t, v in self.seen.truth_velocity if t0 <= t <= t1]
+        return (np.array([t for t, _ in keep]),
+                np.array([v for _, v in keep]) if keep else np.zeros((0, 3)))
 
     def truth_hole(self, t0: float, t1: float) -> float:
         """The longest time (s) between ``t0`` and ``t1`` without a ground-truth sample

@@ -255,12 +255,32 @@ def render(demo: list[dict[str, Any]], tier: list[dict[str, Any]], day: str) -> 
     return text
 
 
-def run_parity(runs: int, px4_build: str | None, out: str | None, tier_runs: int = 0) -> str:
-    """Fly, print and (with ``out``) write the tables and their JSON beside them."""
-    builds = [None, px4_build] if px4_build else [None]
+def with_px4_from(earlier: dict[str, Any], demo: list[dict[str, Any]],
+                  tier: list[dict[str, Any]], day: str
+                  ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
+    """The ``sitl`` flights just flown beside PX4's from an ``earlier`` parity JSON."""
+    def px4(backends: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [b for b in backends if b["backend"] == "px4"]
+
+    if not px4(earlier["demo"]) or (tier and not px4(earlier["tier"])):
+        raise ValueError("the earlier parity JSON has no PX4 flights of that kind")
+    return (demo + px4(earlier["demo"]), tier + px4(earlier["tier"]) if tier else [],
+            f"{day} (PX4's flights: {earlier['measured']})")
+
+
+def run_parity(runs: int, px4_build: str | None, out: str | None, tier_runs: int = 0,
+               px4_from: str | None = None) -> str:
+    """Fly, print and (with ``out``) write the tables and their JSON beside them.
+
+    ``px4_from``: take PX4's flights from this earlier JSON instead of flying PX4 again
+    (after a change of the ``sitl`` vehicle alone); the tables say when they were flown."""
+    builds = [None, px4_build] if px4_build and not px4_from else [None]
     demo = [fly(runs, b) for b in builds]
     tier = [fly_tier(tier_runs, b) for b in builds] if tier_runs > 0 else []
     day = time.strftime("%Y-%m-%d", time.gmtime())
+    if px4_from:
+        demo, tier, day = with_px4_from(json.loads(Path(px4_from).read_text()), demo, tier,
+                                        day)
     text = render(demo, tier, day)
     if out:
         Path(out).write_text(text + "\n")

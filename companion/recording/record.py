@@ -107,10 +107,16 @@ class _File:
 
 class Recorder:
     """``put(channel, payload, stamp)`` from anywhere, never blocking; a writer
-    thread writes MCAP files named ``<name>-<UTC time>-<n>.mcap`` in ``directory``."""
+    thread writes MCAP files named ``<name>-<UTC time>-<n>.mcap`` in ``directory``.
+
+    ``share_gil``: the writer hands the GIL over between messages (and a large
+    Foxglove scene between batches), for a process whose other threads must not wait
+    for it (the service's setpoint stream); the record's own process
+    (:mod:`companion.recording.record_process`) has none and writes without."""
 
     def __init__(self, directory: str | Path, name: str = "rota", max_file_mb: float = 100.0,
-                 max_total_mb: float = 2000.0, queue: int = 20000, foxglove: bool = True) -> None:
+                 max_total_mb: float = 2000.0, queue: int = 20000, foxglove: bool = True,
+                 share_gil: bool = True) -> None:
         if max_file_mb <= 0 or max_total_mb < max_file_mb or queue < 1:
             raise ValueError("record: need max_file_mb > 0, max_total_mb >= max_file_mb, "
                              "queue >= 1")
@@ -130,7 +136,9 @@ class Recorder:
         self._thread: threading.Thread | None = None
         self.error: str | None = None
         #: Foxglove's messages for each one recorded (None: not written)
-        self.scene: Scene | None = Scene(_pause) if foxglove else None
+        self.share_gil = share_gil
+        self.scene: Scene | None = (Scene(_pause) if share_gil else Scene()) if foxglove \
+            else None
         self.scene_errors = 0
         #: channels drawn for Foxglove from what :meth:`show` gives, not as recorded:
         #: the map (its JSON would be parsed again) and, where the service gives plan
@@ -138,9 +146,10 @@ class Recorder:
         self.drawn_apart: frozenset[str] = frozenset({"map"})
 
     @classmethod
-    def from_settings(cls, settings: RecordSettings, state_dir: str, name: str) -> Recorder:
+    def from_settings(cls, settings: RecordSettings, state_dir: str, name: str,
+                      share_gil: bool = True) -> Recorder:
         return cls(settings.dir or Path(state_dir) / "records", name, settings.max_file_mb,
-                   settings.max_total_mb, settings.queue, settings.foxglove)
+                   settings.max_total_mb, settings.queue, settings.foxglove, share_gil)
 
     # ------------------------------------------------------------ the hot path
     def put(self, channel: str, payload: bytes | dict[str, Any],
@@ -214,7 +223,8 @@ class Recorder:
             # Hand the GIL over between messages: a thread waiting for it (the event
             # loop, the setpoint stream) gets it now, not after Python's 5 ms switch
             # interval while this thread goes on encoding.
-            time.sleep(0)
+            if self.share_gil:
+                time.sleep(0)
             if f.size() >= self.max_file:
                 f.close()
                 self._open()

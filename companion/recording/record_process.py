@@ -208,7 +208,8 @@ def _child(recv: Any, back: Any, settings: RecordSettings, state_dir: str, name:
     rlog.handlers[:] = [_Back(back)]
     rlog.setLevel(level)
     rlog.propagate = False
-    rec = Recorder.from_settings(settings, state_dir, name)
+    # (no stream here to hand the GIL to: the writer need not yield between messages)
+    rec = Recorder.from_settings(settings, state_dir, name, share_gil=False)
     # the service shows every re-timed plan as a PlanView made in the re-time worker:
     # this process draws it without loading rota (numba, scipy: 150 MB more)
     rec.drawn_apart = frozenset({"map", "retimed"})

@@ -89,3 +89,21 @@ def test_tracking_figures_say_when_the_vehicle_never_settles():
     assert table([{"backend": "px4", "runs": [{**_run(12.0, 0.5), **fig}], "failed": []}],
                  (("settle_s", "settled", "s"),), reached=False).splitlines()[-1] \
         == "| settled (s) | - [1 without] |"
+
+
+def test_px4_flights_can_come_from_an_earlier_table():
+    """After a change of the `sitl` vehicle alone, its flights beside PX4's earlier ones,
+    and the table says when PX4 flew."""
+    from sitl.parity import render, with_px4_from
+
+    sitl = {"backend": "sitl", "runs": [_run(12.0, 0.8)], "failed": []}
+    old_sitl = {"backend": "sitl", "runs": [_run(99.0, 0.8)], "failed": []}
+    px4 = {"backend": "px4", "runs": [_run(19.0, 0.3), _run(18.0, 0.4)], "failed": []}
+    earlier = {"measured": "2026-12-01", "demo": [old_sitl, px4], "tier": []}
+    demo, tier, day = with_px4_from(earlier, [sitl], [], "2026-12-07")
+    assert demo == [sitl, px4] and tier == []
+    text = render(demo, tier, day)
+    assert "measured 2026-12-07 (PX4's flights: 2026-12-01)" in text
+    assert "| 12 (12-12) | 18.5 ± 0.707 (18-19) |" in text  # not the old sitl's 99 s
+    with pytest.raises(ValueError, match="no PX4 flights"):
+        with_px4_from({"measured": "x", "demo": [old_sitl], "tier": []}, [sitl], [], "y")
