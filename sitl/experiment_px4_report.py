@@ -96,9 +96,12 @@ def jerk_summary(trials: list[dict[str, Any]]) -> dict[str, Any] | None:
         return np.array([t["arms"][arm][key] if key in t["arms"][arm] else t["durations"][arm]
                          for t in both], float)
 
+    flown = [a for a in (*ARMS, JERK_ARM)  # (the controls too, where they flew)
+             if all(a in t["arms"] and "rms_jerk_truth" in t["arms"][a] for t in both)]
     arms = {a: {"rms_jerk_truth": float(np.mean(col(a, "rms_jerk_truth"))),
                 "rms_jerk_commanded": float(np.mean(col(a, "rms_jerk_commanded"))),
-                "duration": float(np.mean(col(a, "duration")))} for a in ("rota", JERK_ARM)}
+                "duration": float(np.mean(col(a, "duration"))),
+                "collisions": int(sum(t["arms"][a]["collided"] for t in both))} for a in flown}
     return {"n": len(both), "arms": arms,
             "jerk_truth": ratio(col(JERK_ARM, "rms_jerk_truth"), col("rota", "rms_jerk_truth")),
             "jerk_commanded": ratio(col(JERK_ARM, "rms_jerk_commanded"),
@@ -109,13 +112,15 @@ def jerk_summary(trials: list[dict[str, Any]]) -> dict[str, Any] | None:
 def jerk_markdown(j: dict[str, Any], j_max: float) -> list[str]:
     """The jerk-limited arm's table (:func:`jerk_summary`)."""
     lines = ["", f"Jerk-limited ROTA (j_max {j_max:g} m/s^3 per axis) against ROTA, the "
-             f"{j['n']} trials both flew; RMS jerk of the velocity (Savitzky-Golay, "
-             "sitl.experiment_px4.rms_jerk), as flown (SIH's truth) and as commanded:", "",
-             "| arm | RMS jerk flown (m/s^3) | RMS jerk commanded (m/s^3) | duration (s) |",
-             "|---|---|---|---|"]
+             f"{j['n']} trials both flew (every arm's mean over them); RMS jerk of the "
+             "velocity (Savitzky-Golay, sitl.experiment_px4.rms_jerk), as flown (SIH's truth) "
+             "and as commanded:", "",
+             "| arm | RMS jerk flown (m/s^3) | RMS jerk commanded (m/s^3) | duration (s) | "
+             "collisions |", "|---|---|---|---|---|"]
     for a, r in j["arms"].items():
         lines.append(f"| {LABELS[a]} | {r['rms_jerk_truth']:.2f} | "
-                     f"{r['rms_jerk_commanded']:.2f} | {r['duration']:.2f} |")
+                     f"{r['rms_jerk_commanded']:.2f} | {r['duration']:.2f} | "
+                     f"{r['collisions']} of {j['n']} |")
     lines += ["", "| jerk-limited / ROTA, paired | ratio (95 % CI) | Wilcoxon p |",
               "|---|---|---|"]
     for key, what in (("jerk_truth", "RMS jerk flown"), ("jerk_commanded",

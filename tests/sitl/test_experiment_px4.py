@@ -161,4 +161,5 @@ def test_the_jerk_summary_pairs_the_two_rota_arms():
     s = summarise(run)
     run["config"]["j_max"] = 4.0
     text = markdown(run, s, "rota-sitl experiment px4 --j-max 4")
-    assert "| flight time | 1.035 (" in text and "| ROTA, jerk-limited | 2.15 | 1.00 |" in text
+    assert "| flight time | 1.035 (" in text
+    assert "| ROTA, jerk-limited | 2.15 | 1.00 | 11.39 | 0 of 4 |" in text
