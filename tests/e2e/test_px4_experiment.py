@@ -1,7 +1,7 @@
 """The PX4 experiment's flight (rota-sitl experiment px4) on real PX4 SITL: one forest, its
-three arms and the jerk-limited one flown by one PX4 instance, judged on SIH's ground
-truth. Part of the PX4 tier (with ROTA_PX4_BUILD; ROTA_PX4_TIER=0 leaves it out): about
-two minutes of real-time PX4.
+three arms flown by one PX4 instance, judged on SIH's ground truth. Part of the PX4 tier
+(with ROTA_PX4_BUILD; ROTA_PX4_TIER=0 leaves it out): about a minute and a half of
+real-time PX4.
 
 Limits, from the 40-trial run in docs/table1/px4 (120 flights):
 * end miss (truth, 1 s after the last setpoint): PX4 overshoots the end and its estimate
@@ -25,7 +25,7 @@ import os
 
 import pytest
 
-from sitl.experiment_px4 import ARMS, JERK_ARM, Px4ExperimentConfig, run
+from sitl.experiment_px4 import ARMS, Px4ExperimentConfig, run
 from sitl.px4 import px4_build, skip_reason
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(400),
@@ -40,16 +40,16 @@ def test_one_forest_flown_three_ways_on_px4():
     build = px4_build()
     if build is None:
         pytest.skip(skip_reason())
-    cfg = Px4ExperimentConfig(trials=1, j_max=4.0)
-    result = run(cfg, str(build))
+    result = run(Px4ExperimentConfig(trials=1), str(build))
     (trial,) = result["trials"]
     assert trial["status"] == "optimal" and trial["fitted_status"] == "rejected"
-    assert set(trial["arms"]) == {*ARMS, JERK_ARM}, trial.get("error")
-    # smoothness as flown and as commanded, measured for every arm; the jerk-limited
-    # arm commands less jerk (its bound; ROTA's bang-bang steps are filtered to 10-20)
-    jerk = {arm: f["rms_jerk_commanded"] for arm, f in trial["arms"].items()}
-    assert all(f["rms_jerk_truth"] > 0 for f in trial["arms"].values()), trial["arms"]
-    assert jerk[JERK_ARM] < jerk["rota"], jerk
+    assert set(trial["arms"]) == set(ARMS), trial.get("error")
+    # smoothness as flown (SIH's true velocity) and as commanded, for every arm (the
+    # jerk-limited arm, `--j-max`, flies in docs/jerk-px4, not here: 30 s more of PX4);
+    # measured in docs/jerk-px4 (40 flights): flown 1.1-2.3 m/s^3, commanded 1.6-3.1 m/s^3
+    for arm, f in trial["arms"].items():
+        assert 0.3 < f["rms_jerk_truth"] < 10.0 and 0.3 < f["rms_jerk_commanded"] < 10.0, \
+            (arm, f)
     for arm, f in trial["arms"].items():
         duration = trial["durations"][arm] + 1.0
         assert f["mode_after"] == "OFFBOARD", arm
