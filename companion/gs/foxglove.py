@@ -38,6 +38,8 @@ from companion.recording.foxglove import (
 log = logging.getLogger("rota.gs.foxglove")
 
 DEFAULT_PORT = 8765
+#: How often (s) the live view asks again for a configuration the service did not give.
+CONFIG_RETRY_S = 5.0
 #: A status event's level as a log level (an audit is a change made at run time)
 EVENT_LEVELS = {"error": "ERROR", "warning": "WARNING", "audit": "WARNING", "event": "INFO"}
 
@@ -68,10 +70,11 @@ class LiveView:
                                             server_listener=_Listener(self._resend))
         self._worker = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
         self._worker.start()
-        try:
-            self.put("config", gs.config(), time.time())
-        except GroundStationError as exc:
-            log.warning("no configuration from the service (%s): no v_max on the plots", exc)
+        #: the service's configuration as last read (None: not yet); its v_max follows the
+        #: limit in force that every status carries (a run-time tightening)
+        self.config: dict[str, Any] | None = None
+        self._asked = time.monotonic()
+        self._fetch_config()
         gs.on_message = self._on_message
         self._map_sub = gs.session.declare_subscriber(gs.key("map"), self._on_map)
 
@@ -99,6 +102,34 @@ class LiveView:
             self.put(name, obj, now)
         if name == "status":
             self._events(obj)
+            self._follow_limits(obj)
+
+    def _fetch_config(self) -> None:
+        """Read the service's configuration (at start, and again while it has not
+        answered: a service still starting may not answer in time)."""
+        try:
+            config = self.gs.config()
+        except GroundStationError as exc:
+            log.warning("no configuration from the service yet (%s): no v_max on the plots "
+                        "until it answers", exc)
+            return
+        self.config = config
+        self.put("config", config, time.time())
+
+    def _follow_limits(self, status: dict[str, Any]) -> None:
+        """The configuration once more if it is missing (every ``CONFIG_RETRY_S``), and
+        the speed limit in force from the status when it changed."""
+        if self.config is None:
+            if time.monotonic() - self._asked >= CONFIG_RETRY_S:
+                self._asked = time.monotonic()  # (not on Zenoh's thread: a query waits)
+                threading.Thread(target=self._fetch_config, daemon=True).start()
+            return
+        v_max = (status.get("limits") or {}).get("v_max")
+        cfg = self.config.get("config", self.config)
+        limits = cfg.setdefault("limits", {})
+        if isinstance(v_max, int | float) and v_max != limits.get("v_max"):
+            limits["v_max"] = v_max
+            self.put("config", self.config, time.time())
 
     def _events(self, status: dict[str, Any]) -> None:
         """The status's events not shown yet, to ``/foxglove/log`` as the record has the
