@@ -290,10 +290,9 @@ async def _fly(build: str, cfg: Px4ExperimentConfig, trials: list[Trial],
                     rec["arms"][arm] = figures(world, truth, estimate, p, mode=obs.mode()[0])
                     t_v, v_true = obs.truth_velocities(t0, t_end)
                     t_sp = t0 + np.arange(len(v)) / cfg.rate_hz
-                    rec["arms"][arm].update(
-                        rms_jerk_truth=rms_jerk(t_v, ned_to_enu(v_true)),
-                        rms_jerk_commanded=rms_jerk(t_sp, v))
-                    rec["arms"][arm].update(late_setpoints=stream.late - late,
+                    rec["arms"][arm].update(rms_jerk_truth=rms_jerk(t_v, ned_to_enu(v_true)),
+                                            rms_jerk_commanded=rms_jerk(t_sp, v),
+                                            late_setpoints=stream.late - late,
                                             truth_hole=obs.truth_hole(t0, t_end),
                                             host_steal_s=float(np.sum(read_steal() - steal)))
                 out.append(rec)
